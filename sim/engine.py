@@ -1,0 +1,219 @@
+"""Ruleset dispatch and the two compiled drivers built on the split frame.
+
+Both drivers step the same ``frame_pre``/``frame_post`` pair (``engine_v1``, ``engine_v2``);
+there is no second, slower copy of the rules:
+
+* ``advance_batch`` — many worlds in parallel (``prange``): each world runs frames until one of
+  its cars must decide, writes that car's observation and stops, so a Python policy can answer
+  all pending decisions of all worlds in one call. Runs end and restart (``reset()``) inside.
+* ``run_compiled`` — one world, with a compiled policy called inside the loop: the official
+  protocols are sequential by nature (v2 runs are coupled through ``reset()``, v1-original is one
+  random stream), so they need one fast world rather than many.
+
+A run's score is ``⌊(sum/frames)·2000⌋/100`` (v1 §9, v2 §11): mean mph truncated to 2 decimals.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from sim.engine_v1 import frame_post_v1, frame_pre_v1, observe_v1, reset_v1
+from sim.engine_v2 import frame_post_v2, frame_pre_v2, observe_v2, reset_v2
+from sim.layout import (
+    CA,
+    CB,
+    CC,
+    F_EGO_SUM,
+    F_LAST_REWARD,
+    F_SCORE_SUM,
+    I_DECIDER,
+    I_DONE,
+    I_FRAME,
+    I_RUNS_DONE,
+    K_FRAMES,
+    K_RULESET,
+    K_RUNS,
+)
+
+V1 = 1
+
+
+@njit(cache=True, inline="always")
+def run_score(total: float, frames: int) -> float:
+    """Mean mph of a run truncated (not rounded) to 2 decimals, in the original's operation order."""
+    return math.floor((total / frames) * 2000.0) / 100.0
+
+
+@njit(cache=True)
+def reset(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int) -> None:
+    """The engine's ``reset()`` for world ``w`` (draws from the world's generators)."""
+    if cfg[K_RULESET] == V1:
+        reset_v1(cars, fs, ints, mr, w)
+    else:
+        reset_v2(cars, fs, ints, mr, cfg, w)
+
+
+@njit(cache=True, inline="always")
+def frame_pre(
+    cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int
+) -> int:
+    """First half of a frame; returns the car that must decide now, or −1."""
+    if cfg[K_RULESET] == V1:
+        return frame_pre_v1(cars, grid, fs, ints, mr, w)
+    return frame_pre_v2(cars, grid, fs, ints, cfg, w)
+
+
+@njit(cache=True, inline="always")
+def frame_post(
+    cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int, action: int
+) -> None:
+    """Second half of a frame, with the pending car's action (ignored when nobody decided)."""
+    if cfg[K_RULESET] == V1:
+        frame_post_v1(cars, grid, fs, ints, w, action)
+    else:
+        frame_post_v2(cars, grid, fs, ints, cfg, w, action)
+
+
+@njit(cache=True, inline="always")
+def observe(cars: np.ndarray, grid: np.ndarray, cfg: np.ndarray, w: int, car: int, out: np.ndarray) -> None:
+    """Input vector of ``car`` in world ``w`` from the grid as it is now."""
+    if cfg[K_RULESET] == V1:
+        observe_v1(cars, grid, cfg, w, out)
+    else:
+        observe_v2(cars, grid, cfg, w, car, out)
+
+
+@njit(cache=True, inline="always")
+def _finish_run(fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int, scores: np.ndarray, ego: np.ndarray) -> bool:
+    """Record the score of the run that just ended; True when the world has done all its runs."""
+    frames = cfg[K_FRAMES]
+    k = ints[w, I_RUNS_DONE]
+    scores[w, k] = run_score(fs[w, F_SCORE_SUM], frames)
+    ego[w, k] = run_score(fs[w, F_EGO_SUM], frames)
+    ints[w, I_RUNS_DONE] = k + 1
+    if k + 1 >= cfg[K_RUNS]:
+        ints[w, I_DONE] = 1
+        return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _advance_world(
+    cars: np.ndarray,
+    grid: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    w: int,
+    actions: np.ndarray,
+    obs: np.ndarray,
+    obs_car: np.ndarray,
+    obs_reward: np.ndarray,
+    scores: np.ndarray,
+    ego: np.ndarray,
+) -> None:
+    obs_car[w] = -1
+    if ints[w, I_DONE] != 0:
+        return
+    if ints[w, I_DECIDER] >= 0:
+        frame_post(cars, grid, fs, ints, cfg, w, actions[w])
+    frames = cfg[K_FRAMES]
+    while True:
+        if ints[w, I_FRAME] >= frames:
+            if _finish_run(fs, ints, cfg, w, scores, ego):
+                return
+            reset(cars, fs, ints, mr, cfg, w)
+        car = frame_pre(cars, grid, fs, ints, mr, cfg, w)
+        if car >= 0:
+            observe(cars, grid, cfg, w, car, obs[w])
+            obs_car[w] = car
+            obs_reward[w] = fs[w, F_LAST_REWARD] if car == 0 else math.nan
+            return
+        frame_post(cars, grid, fs, ints, cfg, w, -1)
+
+
+@njit(cache=True, parallel=True)
+def advance_batch(
+    cars: np.ndarray,
+    grid: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    actions: np.ndarray,
+    obs: np.ndarray,
+    obs_car: np.ndarray,
+    obs_reward: np.ndarray,
+    scores: np.ndarray,
+    ego: np.ndarray,
+) -> None:
+    """Apply each pending world's action, then run every world to its next decision (or its end)."""
+    for w in prange(cars.shape[0]):
+        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego)
+
+
+@njit(cache=True)
+def advance_one(
+    cars: np.ndarray,
+    grid: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    actions: np.ndarray,
+    obs: np.ndarray,
+    obs_car: np.ndarray,
+    obs_reward: np.ndarray,
+    scores: np.ndarray,
+    ego: np.ndarray,
+) -> None:
+    """``advance_batch`` without the thread pool: the cheapest call for one world (training)."""
+    for w in range(cars.shape[0]):
+        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego)
+
+
+@njit
+def run_compiled(
+    cars: np.ndarray,
+    grid: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    w: int,
+    policy,  # noqa: ANN001 - a numba-compiled policy function (see sim.policies)
+    pstate,  # noqa: ANN001 - that policy's own state (any numba-typed value)
+    obs: np.ndarray,
+    scores: np.ndarray,
+    ego: np.ndarray,
+    progress: np.ndarray,
+) -> None:
+    """Run world ``w`` (already reset) through its remaining runs with ``policy`` called inline.
+
+    ``policy(inputs, lane, car, reward, mr, w, pstate) -> action``; ``progress[0]`` counts frames.
+    """
+    frames = cfg[K_FRAMES]
+    while ints[w, I_DONE] == 0:
+        for _ in range(frames - ints[w, I_FRAME]):
+            car = frame_pre(cars, grid, fs, ints, mr, cfg, w)
+            action = -1
+            if car >= 0:
+                observe(cars, grid, cfg, w, car, obs)
+                reward = fs[w, F_LAST_REWARD] if car == 0 else math.nan
+                action = policy(obs, int(cars[w, CB, car]), car, reward, mr, w, pstate)
+            frame_post(cars, grid, fs, ints, cfg, w, action)
+        progress[0] += frames
+        if not _finish_run(fs, ints, cfg, w, scores, ego):
+            reset(cars, fs, ints, mr, cfg, w)
+
+
+@njit(cache=True)
+def car_speeds(cars: np.ndarray, w: np.ndarray, car: np.ndarray, out: np.ndarray) -> None:
+    """Speed setting ``a`` and current mph ``20·c·a`` of the given cars (for observations)."""
+    for k in range(w.shape[0]):
+        out[k, 0] = cars[w[k], CA, car[k]]
+        out[k, 1] = 20.0 * cars[w[k], CC, car[k]] * cars[w[k], CA, car[k]]

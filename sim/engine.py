@@ -101,6 +101,17 @@ def _finish_run(fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int, score
 
 
 @njit(cache=True, inline="always")
+def _next_run(
+    cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, run_seeds: np.ndarray
+) -> None:
+    """Reset for the next run; protocols that re-seed ``Math.random`` per run do it right before."""
+    seed = run_seeds[w, ints[w, I_RUNS_DONE]]
+    if seed >= 0:
+        mr[w] = seed
+    reset(cars, fs, ints, mr, cfg, w)
+
+
+@njit(cache=True, inline="always")
 def _advance_world(
     cars: np.ndarray,
     grid: np.ndarray,
@@ -115,6 +126,7 @@ def _advance_world(
     obs_reward: np.ndarray,
     scores: np.ndarray,
     ego: np.ndarray,
+    run_seeds: np.ndarray,
 ) -> None:
     obs_car[w] = -1
     if ints[w, I_DONE] != 0:
@@ -126,7 +138,7 @@ def _advance_world(
         if ints[w, I_FRAME] >= frames:
             if _finish_run(fs, ints, cfg, w, scores, ego):
                 return
-            reset(cars, fs, ints, mr, cfg, w)
+            _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
         car = frame_pre(cars, grid, fs, ints, mr, cfg, w)
         if car >= 0:
             observe(cars, grid, cfg, w, car, obs[w])
@@ -150,10 +162,11 @@ def advance_batch(
     obs_reward: np.ndarray,
     scores: np.ndarray,
     ego: np.ndarray,
+    run_seeds: np.ndarray,
 ) -> None:
     """Apply each pending world's action, then run every world to its next decision (or its end)."""
     for w in prange(cars.shape[0]):
-        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego)
+        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
 
 
 @njit(cache=True)
@@ -170,10 +183,11 @@ def advance_one(
     obs_reward: np.ndarray,
     scores: np.ndarray,
     ego: np.ndarray,
+    run_seeds: np.ndarray,
 ) -> None:
     """``advance_batch`` without the thread pool: the cheapest call for one world (training)."""
     for w in range(cars.shape[0]):
-        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego)
+        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
 
 
 @njit
@@ -190,14 +204,17 @@ def run_compiled(
     obs: np.ndarray,
     scores: np.ndarray,
     ego: np.ndarray,
-    progress: np.ndarray,
+    run_seeds: np.ndarray,
+    max_runs: int,
 ) -> None:
-    """Run world ``w`` (already reset) through its remaining runs with ``policy`` called inline.
+    """Run world ``w`` (already reset) through at most ``max_runs`` more runs, ``policy`` inline.
 
-    ``policy(inputs, lane, car, reward, mr, w, pstate) -> action``; ``progress[0]`` counts frames.
+    ``policy(inputs, lane, car, reward, mr, w, pstate) -> action`` (``sim.policies``).
     """
     frames = cfg[K_FRAMES]
-    while ints[w, I_DONE] == 0:
+    done = 0
+    while ints[w, I_DONE] == 0 and done < max_runs:
+        done += 1
         for _ in range(frames - ints[w, I_FRAME]):
             car = frame_pre(cars, grid, fs, ints, mr, cfg, w)
             action = -1
@@ -206,9 +223,8 @@ def run_compiled(
                 reward = fs[w, F_LAST_REWARD] if car == 0 else math.nan
                 action = policy(obs, int(cars[w, CB, car]), car, reward, mr, w, pstate)
             frame_post(cars, grid, fs, ints, cfg, w, action)
-        progress[0] += frames
         if not _finish_run(fs, ints, cfg, w, scores, ego):
-            reset(cars, fs, ints, mr, cfg, w)
+            _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
 
 
 @njit(cache=True)

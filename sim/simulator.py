@@ -25,6 +25,8 @@ from sim.config import EngineConfig
 from sim.layout import (
     CB,
     I_DONE,
+    I_FRAME,
+    I_RUNS_DONE,
     K_AGENTS,
     K_AHEAD,
     K_BEHIND,
@@ -111,6 +113,7 @@ class Simulator:
         self._obs_car = np.full(w, -1, dtype=np.int64)
         self._obs_reward = np.zeros(w)
         self._actions = np.zeros(w, dtype=np.int64)
+        self.run_seeds = np.full((w, runs_per_world), -1, dtype=np.int64)
         self._seeded = False
         self._parallel = w > 1
 
@@ -135,6 +138,21 @@ class Simulator:
             raise ValueError("seed_stream: the sequential protocols use exactly one world")
         fn = seeding.seed_v1 if self.config.ruleset == "v1" else seeding.seed_v2_official
         fn(*self._arrays(), 0, mrand_state)
+        self._seeded = True
+
+    def seed_per_run(self, seeds: list[int] | np.ndarray) -> None:
+        """v1, one world: ``Math.random := mulberry32(seeds[k])`` right before run k's reset.
+
+        The v1-distribution protocol for a policy with memory (a network's temporal window
+        persists across runs): one world, re-seeded per run, instead of independent worlds.
+        """
+        if self.config.ruleset != "v1" or self.n_worlds != 1:
+            raise ValueError("seed_per_run: per-run re-seeding is a v1 protocol on one world")
+        seeds = np.asarray(seeds, dtype=np.int64)
+        if seeds.shape != (self.runs_per_world,):
+            raise ValueError(f"seed_per_run: need {self.runs_per_world} seeds, got {seeds.shape}")
+        self.run_seeds[0] = seeds & 0xFFFFFFFF
+        seeding.seed_v1(*self._arrays(), 0, int(seeds[0]))
         self._seeded = True
 
     def seed_training(self, mrand_state: int, brain_draws: int = 1) -> None:
@@ -163,6 +181,7 @@ class Simulator:
             self._obs_reward,
             self.scores,
             self.ego_scores,
+            self.run_seeds,
         )
         pending = self._obs_car >= 0
         n_pending = int(np.count_nonzero(pending))
@@ -209,23 +228,25 @@ class Simulator:
     @property
     def frames_simulated(self) -> int:
         """Frames simulated so far over all worlds."""
-        from sim.layout import I_FRAME, I_RUNS_DONE
-
         done_runs = self.ints[:, I_RUNS_DONE]
         current = np.where(self.ints[:, I_DONE] != 0, 0, self.ints[:, I_FRAME])
         return int(done_runs.sum() * self.frames_per_run + current.sum())
 
-    def run_compiled(self, policy, pstate, progress: np.ndarray | None = None) -> None:  # noqa: ANN001
-        """Drive world 0 through all its runs with a numba-compiled policy inside the loop."""
+    def run_compiled(self, policy, pstate, max_runs: int | None = None) -> int:  # noqa: ANN001
+        """Drive world 0 through (at most ``max_runs`` of) its remaining runs, policy compiled inline.
+
+        Returns the number of runs completed so far.
+        """
         if self.n_worlds != 1:
             raise ValueError("run_compiled: compiled policies drive exactly one world")
-        if progress is None:
-            progress = np.zeros(1, dtype=np.int64)
+        if not self._seeded:
+            raise RuntimeError("seed the simulator before run_compiled()")
         obs = np.zeros(self.config.num_inputs)
         engine.run_compiled(
             self.cars, self.grid, self.fs, self.ints, self.mrand, self.cfg, 0, policy, pstate,
-            obs, self.scores, self.ego_scores, progress,
+            obs, self.scores, self.ego_scores, self.run_seeds, self.runs_per_world if max_runs is None else max_runs,
         )
+        return int(self.ints[0, I_RUNS_DONE])
 
 
 def check_actions(actions: object, n: int) -> np.ndarray:

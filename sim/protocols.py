@@ -1,0 +1,248 @@
+"""Evaluation protocols, seeded as the reference data was, so scores compare digit for digit.
+
+* ``v2-official`` (engine_spec_v2.md §11): ``Math.random := mulberry32(seed)`` (default 1) before
+  a fresh engine load, then ``doEvalRun(500, 2000, true)``: run k uses Park–Miller seed k + 1 and
+  is coupled to run k − 1 through ``reset()``. The site's number is the lexicographic
+  ``sorted[250]`` of the per-run scores. Sequential by nature.
+* ``v1-original`` (engine_spec.md §9): ``evaluate.js`` — ``Math.random := mulberry32(seed)``
+  (default 2000), ``doEvalRun(10, 100000)`` in one stream, lexicographic ``sorted[5]``. Sequential.
+* ``v1-distribution`` (engine_spec.md §13): 200 × 10,000 frames, run i seeded ``seed + i``
+  (default 1000). Independent worlds for memoryless policies; one world re-seeded per run for
+  policies with memory (a network's temporal window persists across runs, as in the reference).
+* ``custom``: ``runs`` × ``frames`` as independent worlds, world i seeded ``seed + i`` (v2: its run
+  uses Park–Miller seed ``seed + i``), stepped as one batch.
+
+The sequential protocols call a policy's compiled twin inside the simulation loop when it has
+one (``policy.compiled``/``policy.pstate``); otherwise the policy is called from Python once per
+decision, which is exact but slower.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numba
+import numpy as np
+
+from sim.config import ConfigError, EngineConfig
+from sim.rng import mulberry32_advance
+from sim.simulator import Observation, Simulator
+
+
+@dataclasses.dataclass(frozen=True)
+class Protocol:
+    name: str
+    ruleset: str | None  # None: either
+    runs: int
+    frames: int
+    seed: int
+    sequential: bool
+    description: str
+
+
+PROTOCOLS: dict[str, Protocol] = {
+    p.name: p
+    for p in (
+        Protocol("v2-official", "v2", 500, 2000, 1, True, "site evaluation worker: 500 × 2,000, run k ↦ PM seed k+1"),
+        Protocol("v1-original", "v1", 10, 100_000, 2000, True, "evaluate.js: 10 × 100,000 in one Math.random stream"),
+        Protocol("v1-distribution", "v1", 200, 10_000, 1000, False, "200 × 10,000, run i ↦ mulberry32(seed + i)"),
+        Protocol("custom", None, 100, 2000, 0, False, "runs × frames as independent worlds, world i ↦ seed + i"),
+    )
+}
+
+
+def js_number_to_string(x: float) -> str:
+    """``String(x)`` of a JS number, for the default (lexicographic) ``Array.prototype.sort``."""
+    if math.isnan(x):
+        return "NaN"
+    if math.isinf(x):
+        return "Infinity" if x > 0 else "-Infinity"
+    if x == int(x) and abs(x) < 1e21:
+        return str(int(x))
+    text = repr(float(x))
+    if "e" in text:  # JS prints 1e-7 as "1e-7" and 1.5e-7 as "1.5e-7"; repr agrees but pads exponents
+        mantissa, exp = text.split("e")
+        text = f"{mantissa}e{int(exp):+d}" if int(exp) > 0 else f"{mantissa}e{int(exp)}"
+    return text
+
+
+def site_median(scores: list[float] | np.ndarray) -> float:
+    """The originals' "median": JS default sort (by string) then element ``runs/2`` (floored)."""
+    values = [float(s) for s in scores]
+    ordered = sorted(values, key=js_number_to_string)
+    return ordered[len(ordered) // 2]
+
+
+@dataclasses.dataclass
+class EvalResult:
+    """Per-run scores in run order plus the summary statistics users compare."""
+
+    protocol: str
+    ruleset: str
+    policy: str
+    seed: int
+    runs: int
+    frames: int
+    other_agents: int
+    scores: list[float]
+    ego_scores: list[float]
+    wall_seconds: float
+    official_size: bool
+
+    @property
+    def median_site(self) -> float:
+        return site_median(self.scores)
+
+    @property
+    def median(self) -> float:
+        return float(np.median(self.scores))
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.scores))
+
+    @property
+    def std(self) -> float:
+        return float(np.std(self.scores, ddof=1)) if len(self.scores) > 1 else 0.0
+
+    @property
+    def ci95(self) -> list[float]:
+        """Normal-approximation 95 % interval of the mean run score."""
+        half = 1.96 * self.std / math.sqrt(len(self.scores))
+        return [self.mean - half, self.mean + half]
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.runs * self.frames / self.wall_seconds if self.wall_seconds > 0 else float("inf")
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "protocol": self.protocol,
+            "ruleset": self.ruleset,
+            "policy": self.policy,
+            "seed": self.seed,
+            "runs": self.runs,
+            "frames": self.frames,
+            "other_agents": self.other_agents,
+            "official_size": self.official_size,
+            "median_site": self.median_site,
+            "median": self.median,
+            "mean": self.mean,
+            "std": self.std,
+            "ci95": self.ci95,
+            "min": float(np.min(self.scores)),
+            "max": float(np.max(self.scores)),
+            "wall_seconds": self.wall_seconds,
+            "frames_per_second": self.frames_per_second,
+            "scores": self.scores,
+            "ego_scores": self.ego_scores,
+        }
+
+
+ProgressFn = Callable[[int, int], None]  # (frames done, frames total)
+
+
+def _resolve(config: EngineConfig, protocol: str, runs: int | None, frames: int | None) -> tuple[Protocol, int, int]:
+    if protocol not in PROTOCOLS:
+        raise ConfigError(f"protocol: '{protocol}' is not a protocol; use one of {', '.join(PROTOCOLS)}")
+    proto = PROTOCOLS[protocol]
+    if proto.ruleset is not None and proto.ruleset != config.ruleset:
+        raise ConfigError(
+            f"protocol: '{protocol}' is a {proto.ruleset} protocol but the ruleset is {config.ruleset}; "
+            f"use --ruleset {proto.ruleset} or the custom protocol"
+        )
+    runs = proto.runs if runs is None else runs
+    frames = proto.frames if frames is None else frames
+    if runs < 1:
+        raise ConfigError(f"runs: must be ≥ 1, got {runs}")
+    if frames < 1:
+        raise ConfigError(f"frames: must be ≥ 1, got {frames}")
+    return proto, runs, frames
+
+
+def evaluate(
+    config: EngineConfig,
+    policy: Callable[[Observation], Any],
+    protocol: str = "v2-official",
+    *,
+    seed: int | None = None,
+    runs: int | None = None,
+    frames: int | None = None,
+    threads: int | None = None,
+    stream_state: int | None = None,
+    policy_name: str | None = None,
+    progress: ProgressFn | None = None,
+) -> EvalResult:
+    """Evaluate ``policy`` with a named protocol; per-run scores come back in run order.
+
+    ``stream_state`` overrides the ``Math.random`` state the protocol starts from (default
+    ``mulberry32(seed)``): a caller that consumed draws before the engine starts — building a
+    convnetjs brain draws its weights from the same stream — passes the advanced state.
+    """
+    proto, runs, frames = _resolve(config, protocol, runs, frames)
+    seed = proto.seed if seed is None else seed
+    if threads is not None:
+        if threads < 1:
+            raise ConfigError(f"threads: must be ≥ 1, got {threads}")
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    name = policy_name or getattr(policy, "name", None) or getattr(policy, "__name__", type(policy).__name__)
+    compiled = getattr(policy, "compiled", None)
+    memoryless = not getattr(policy, "stateful", compiled is None)
+    start = time.perf_counter()
+    total = runs * frames
+
+    if proto.sequential or (protocol == "v1-distribution" and not memoryless):
+        sim = Simulator(config, 1, frames, runs)
+        if protocol == "v1-distribution":
+            sim.seed_per_run([seed + i for i in range(runs)])
+        else:
+            sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
+        if compiled is not None:
+            chunk = max(1, 200_000 // frames)
+            done = 0
+            while done < runs:
+                done = sim.run_compiled(compiled, policy.pstate, max_runs=chunk)  # type: ignore[attr-defined]
+                if progress:
+                    progress(done * frames, total)
+        else:
+            _drive(sim, policy, progress, total)
+    else:
+        sim = Simulator(config, runs, frames, 1)
+        sim.seed_independent(seed)
+        _drive(sim, policy, progress, total)
+
+    wall = time.perf_counter() - start
+    scores = sim.scores.reshape(-1).tolist()
+    ego = sim.ego_scores.reshape(-1).tolist()
+    return EvalResult(
+        protocol=protocol,
+        ruleset=config.ruleset,
+        policy=str(name),
+        seed=seed,
+        runs=runs,
+        frames=frames,
+        other_agents=config.other_agents,
+        scores=scores,
+        ego_scores=ego,
+        wall_seconds=wall,
+        official_size=(runs == proto.runs and frames == proto.frames),
+    )
+
+
+def _drive(sim: Simulator, policy: Callable[[Observation], Any], progress: ProgressFn | None, total: int) -> None:
+    """Python-policy loop: one policy call per batch of pending decisions."""
+    obs = sim.start()
+    last = 0
+    while obs is not None:
+        obs = sim.step(policy(obs))
+        if progress:
+            done = sim.frames_simulated
+            if done - last >= 200_000:
+                progress(done, total)
+                last = done
+    if progress:
+        progress(total, total)

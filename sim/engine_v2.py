@@ -55,7 +55,7 @@ from sim.layout import (
     N_LANES,
     N_ROWS,
 )
-from sim.rng import mrand, pm_draw, pm_seed_state
+from sim.rng import mrand, pm_draw, pm_draw_exceeds, pm_seed_state
 from sim.rules import apply_action, move, safety_factor, spawn_lane, try_lane_change
 
 FREE = 100.0
@@ -211,8 +211,8 @@ def frame_pre_v2(
         c = safety_factor(g, cars, w, i, FREE)
         cars[w, CC, i] = c
         if i > n:
-            if pm_draw(ints, w, I_PM_V) > 0.99 + 0.004 * c:
-                direction = -1.0 if 0.5 < pm_draw(ints, w, I_PM_V) else 1.0
+            if pm_draw_exceeds(ints, w, I_PM_V, 0.99 + 0.004 * c):
+                direction = -1.0 if pm_draw_exceeds(ints, w, I_PM_V, 0.5) else 1.0
                 try_lane_change(g, cars, w, i, direction, FREE)
     agent = _agent_deciding(ints[w, I_FRAME], n)
     if agent > 0:

@@ -6,7 +6,13 @@ A car is drawn by writing one value at the cells under the offsets ox ∈ {0, 10
 oy ∈ {0, 5, …, 30} of its top-left corner, each coordinate computed exactly as
 ``(x + ox)/20`` and ``(y + oy)/10`` — not ``y/10 + oy/10``, which is not always the same double
 (spec §11). Every write of one car carries the same value, so the order inside a car does not
-matter and each row index is computed once and reused for both lanes.
+matter: the rows written are exactly the integers from ``⌊y/10⌋`` to ``⌊(y + 30)/10⌋`` (the
+seven offsets are monotone and 5 px apart, so they leave no gap), and only those two quotients
+are needed.
+
+``floor_div`` computes ``⌊fl(s/d)⌋`` — the floor of the correctly rounded quotient, as JS does —
+with a multiplication, and falls back to the real division only within 1e-7 of a boundary, where
+the two could differ. The hot loop therefore needs almost no divisions and stays bit-exact.
 """
 
 from __future__ import annotations
@@ -36,6 +42,23 @@ def js_max(a: float, b: float) -> float:
 
 
 @njit(cache=True, inline="always")
+def floor_div(s: float, d: float, inv: float) -> float:
+    """``⌊fl(s/d)⌋`` exactly, for |s| ≪ 1e8 and d a small integer with ``inv ≈ 1/d``."""
+    n = math.floor(s * inv)
+    if d * n <= s and s < d * (n + 1.0) - 1e-7:
+        return n
+    return math.floor(s / d)
+
+
+@njit(cache=True, inline="always")
+def cell(g: np.ndarray, lane: float, row: float, default: float) -> float:
+    """Cell at already-floored (lane, row), or ``default`` outside the grid."""
+    if lane >= 0.0 and lane < N_LANES and row >= 0.0 and row < N_ROWS:
+        return g[int(lane), int(row)]
+    return default
+
+
+@njit(cache=True, inline="always")
 def grid_get(g: np.ndarray, lane: float, row: float, default: float) -> float:
     """Cell at (⌊lane⌋, ⌊row⌋), or ``default`` outside the grid (NaN coordinates are outside)."""
     fl = math.floor(lane)
@@ -48,13 +71,19 @@ def grid_get(g: np.ndarray, lane: float, row: float, default: float) -> float:
 @njit(cache=True, inline="always")
 def draw_car(g: np.ndarray, x: float, y: float, value: float) -> None:
     """Write ``value`` into the car's footprint (one lane when settled, two while changing)."""
-    l0 = math.floor(x / 20.0)
-    l1 = math.floor((x + 10.0) / 20.0)
-    for k in range(7):
-        r = math.floor((y + 5.0 * k) / 10.0)
-        if r >= 0.0 and r < N_ROWS:
-            ri = int(r)
-            if l0 >= 0.0 and l0 < N_LANES:
-                g[int(l0), ri] = value
-            if l1 != l0 and l1 >= 0.0 and l1 < N_LANES:
-                g[int(l1), ri] = value
+    first = floor_div(y, 10.0, 0.1)
+    last = floor_div(y + 30.0, 10.0, 0.1)
+    if not (first < N_ROWS and last >= 0.0):  # off the grid, or NaN
+        return
+    r0 = int(max(first, 0.0))
+    r1 = int(min(last, N_ROWS - 1.0))
+    l0 = floor_div(x, 20.0, 0.05)
+    l1 = floor_div(x + 10.0, 20.0, 0.05)
+    if l0 >= 0.0 and l0 < N_LANES:
+        li = int(l0)
+        for r in range(r0, r1 + 1):
+            g[li, r] = value
+    if l1 != l0 and l1 >= 0.0 and l1 < N_LANES:
+        li = int(l1)
+        for r in range(r0, r1 + 1):
+            g[li, r] = value

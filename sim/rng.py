@@ -68,6 +68,17 @@ def pm_draw(ints: np.ndarray, w: int, col: int) -> float:
     return (g - 1) / 2147483646.0
 
 
+@njit(cache=True, inline="always")
+def pm_draw_exceeds(ints: np.ndarray, w: int, col: int, threshold: float) -> bool:
+    """``draw > threshold`` for a Park–Miller draw, exact, dividing only near the threshold."""
+    g = (PM_MULTIPLIER * ints[w, col]) % PM_MODULUS
+    ints[w, col] = g
+    approx = (g - 1) * (1.0 / 2147483646.0)
+    if abs(approx - threshold) > 1e-9:
+        return approx > threshold
+    return (g - 1) / 2147483646.0 > threshold
+
+
 def mulberry32_stream(seed: int, n: int) -> list[float]:
     """The first ``n`` draws of ``mulberry32(seed)`` (reference helper for tests and tools)."""
     s = seed & _MASK32

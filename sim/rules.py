@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.grid import grid_get, js_min
+from sim.grid import cell, floor_div, grid_get, js_min
 from sim.layout import CA, CB, CC, CX, CY
 
 LATERAL_STEP = 20.0 / 30.0
@@ -48,10 +48,10 @@ def safety_factor(g: np.ndarray, cars: np.ndarray, w: int, i: int, free: float) 
     x = cars[w, CX, i]
     y = cars[w, CY, i]
     a = cars[w, CA, i]
-    col = (x + 7.5) / 20.0
+    col = floor_div(x + 7.5, 20.0, 0.05)
     v = 2.0
     for k in range(1, 5):
-        d = grid_get(g, col, (y - 10.0 * k) / 10.0, free)
+        d = cell(g, col, floor_div(y - 10.0 * k, 10.0, 0.1), free)
         if d < free:
             v = js_min(v, 0.5 * (k - 1))
             v = js_min(v, d / a)

@@ -221,6 +221,44 @@ class Simulator:
         self._actions[self._pending] = actions
         return self._advance()
 
+    # -- lean single-world loop (training) ----------------------------------------------
+    def start_single(self) -> int:
+        """Single-world fast path: run to the first decision; returns the deciding car (−1: done).
+
+        The observation is left in ``obs_inputs[0]`` and ``obs_reward[0]``; no objects are built.
+        """
+        if not self._seeded:
+            raise RuntimeError("seed the simulator before start_single()")
+        self._run_one()
+        return int(self._obs_car[0])
+
+    def step_single(self, action: int) -> int:
+        """Answer world 0's pending decision (trusted action 0–4) and run to the next one."""
+        self._actions[0] = action
+        self._run_one()
+        return int(self._obs_car[0])
+
+    def _run_one(self) -> None:
+        engine.advance_one(
+            self.cars, self.grid, self.fs, self.ints, self.mrand, self.cfg, self._actions, self._obs,
+            self._obs_car, self._obs_reward, self.scores, self.ego_scores, self.run_seeds,
+        )
+
+    @property
+    def obs_inputs(self) -> np.ndarray:
+        """(n_worlds, D) buffer holding each waiting world's latest observation."""
+        return self._obs
+
+    @property
+    def obs_reward(self) -> np.ndarray:
+        """(n_worlds,) the ego's reward at its latest decision (NaN for agents)."""
+        return self._obs_reward
+
+    @property
+    def obs_car(self) -> np.ndarray:
+        """(n_worlds,) the car waiting in each world (−1 when none)."""
+        return self._obs_car
+
     @property
     def done(self) -> bool:
         return bool(np.all(self.ints[:, I_DONE] != 0))

@@ -1,0 +1,95 @@
+"""Simulator throughput: frames/s with the noop policy, end to end through the Python step loop.
+
+Grid: rulesets v1, v2 (0 agents), v2 (10 agents) × batch 1, 64, 4096 worlds × threads 1, 2,
+plus a single world stepped decision by decision through the lean ``start_single``/``step_single``
+path that training uses, and sequential official evaluations with a compiled policy.
+Compilation is excluded (one warm-up pass per shape). Prints a table and one JSON line.
+
+    python bench/sim_throughput.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numba
+import numpy as np
+
+from sim.config import EngineConfig
+from sim.policies import BUILTINS
+from sim.protocols import evaluate
+from sim.simulator import Simulator
+
+CASES = (("v1", 0), ("v2", 0), ("v2", 10))
+
+
+def _noop(obs):  # noqa: ANN001, ANN202
+    return np.zeros(len(obs), dtype=np.int64)
+
+
+def batch_fps(ruleset: str, agents: int, worlds: int, frames: int) -> float:
+    config = EngineConfig(ruleset=ruleset, other_agents=agents)
+    sim = Simulator(config, worlds, frames)
+    sim.seed_independent(1)
+    start = time.perf_counter()
+    obs = sim.start()
+    while obs is not None:
+        obs = sim.step(_noop(obs))
+    return worlds * frames / (time.perf_counter() - start)
+
+
+def single_fps(ruleset: str, agents: int, frames: int) -> float:
+    config = EngineConfig(ruleset=ruleset, other_agents=agents)
+    sim = Simulator(config, 1, frames)
+    sim.seed_independent(1)
+    start = time.perf_counter()
+    car = sim.start_single()
+    while car >= 0:
+        car = sim.step_single(0)
+    return frames / (time.perf_counter() - start)
+
+
+def official_seconds(agents: int) -> float:
+    config = EngineConfig(ruleset="v2", lanes_side=1, patches_ahead=10, other_agents=agents)
+    policy = BUILTINS["heuristic_a"].bind(config)
+    return evaluate(config, policy, "v2-official").wall_seconds
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="smaller runs (noisier)")
+    args = ap.parse_args()
+    scale = 0.25 if args.quick else 1.0
+    total = int(8_000_000 * scale)
+    rows = []
+    for ruleset, agents in CASES:  # warm-up: compile every shape once
+        batch_fps(ruleset, agents, 2, 60)
+        single_fps(ruleset, agents, 60)
+    official_seconds(10)
+    for ruleset, agents in CASES:
+        for threads in (1, 2):
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+            for worlds in (1, 64, 4096):
+                frames = max(2000, total // worlds) if worlds > 1 else int(1_000_000 * scale)
+                fps = batch_fps(ruleset, agents, worlds, frames)
+                rows.append({"ruleset": ruleset, "agents": agents, "batch": worlds, "threads": threads, "fps": fps})
+        numba.set_num_threads(1)
+        rows.append(
+            {"ruleset": ruleset, "agents": agents, "batch": "single-step", "threads": 1,
+             "fps": single_fps(ruleset, agents, int(2_000_000 * scale))}
+        )
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    official = {f"v2_official_heuristic_a_agents{a}_s": official_seconds(a) for a in (0, 10)}
+
+    print(f"{'ruleset':8} {'agents':>6} {'batch':>12} {'threads':>7} {'frames/s':>14}")
+    for r in rows:
+        print(f"{r['ruleset']:8} {r['agents']:>6} {r['batch']!s:>12} {r['threads']:>7} {r['fps']:>14,.0f}")
+    for k, v in official.items():
+        print(f"{k}: {v:.3f}")
+    print(json.dumps({"bench": "sim_throughput", "rows": rows, **official}))
+
+
+if __name__ == "__main__":
+    main()

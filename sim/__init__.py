@@ -1,0 +1,36 @@
+"""Faithful, compiled, batched re-implementation of the DeepTraffic engines (v1 and v2).
+
+Importing the package points numba's on-disk cache at a folder keyed by a hash of this
+project's sources. numba keys each cached function on its own file only, so a function that
+inlines code from another module would otherwise keep stale machine code after an edit (or an
+upgrade) of that module. Set ``NUMBA_CACHE_DIR`` to choose the location yourself.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+
+def _configure_numba_cache() -> None:
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    import numba
+
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha1()
+    for package in ("sim", "autotune"):
+        for path in sorted((root / package).glob("*.py")):
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "deeptraffic-autotune" / "numba"
+    numba.config.CACHE_DIR = str(base / digest.hexdigest()[:16])
+
+
+_configure_numba_cache()
+
+from sim.config import ConfigError, EngineConfig  # noqa: E402
+from sim.simulator import Observation, PolicyError, Simulator  # noqa: E402
+
+__all__ = ["ConfigError", "EngineConfig", "Observation", "PolicyError", "Simulator"]

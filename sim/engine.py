@@ -41,13 +41,13 @@ from sim.layout import (
 V1 = 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def run_score(total: float, frames: int) -> float:
     """Mean mph of a run truncated (not rounded) to 2 decimals, in the original's operation order."""
     return math.floor((total / frames) * 2000.0) / 100.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def reset(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int) -> None:
     """The engine's ``reset()`` for world ``w`` (draws from the world's generators)."""
     if cfg[K_RULESET] == V1:
@@ -56,7 +56,7 @@ def reset(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cf
         reset_v2(cars, fs, ints, mr, cfg, w)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def frame_pre(
     cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int
 ) -> int:
@@ -66,7 +66,7 @@ def frame_pre(
     return frame_pre_v2(cars, grid, fs, ints, cfg, w)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def frame_post(
     cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int, action: int
 ) -> None:
@@ -77,7 +77,7 @@ def frame_post(
         frame_post_v2(cars, grid, fs, ints, cfg, w, action)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def observe(cars: np.ndarray, grid: np.ndarray, cfg: np.ndarray, w: int, car: int, out: np.ndarray) -> None:
     """Input vector of ``car`` in world ``w`` from the grid as it is now."""
     if cfg[K_RULESET] == V1:
@@ -86,7 +86,7 @@ def observe(cars: np.ndarray, grid: np.ndarray, cfg: np.ndarray, w: int, car: in
         observe_v2(cars, grid, cfg, w, car, out)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _finish_run(fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int, scores: np.ndarray, ego: np.ndarray) -> bool:
     """Record the score of the run that just ended; True when the world has done all its runs."""
     frames = cfg[K_FRAMES]
@@ -100,7 +100,7 @@ def _finish_run(fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int, score
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _next_run(
     cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, run_seeds: np.ndarray
 ) -> None:
@@ -111,7 +111,7 @@ def _next_run(
     reset(cars, fs, ints, mr, cfg, w)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _advance_world(
     cars: np.ndarray,
     grid: np.ndarray,
@@ -148,7 +148,7 @@ def _advance_world(
         frame_post(cars, grid, fs, ints, cfg, w, -1)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def advance_batch(
     cars: np.ndarray,
     grid: np.ndarray,
@@ -169,7 +169,7 @@ def advance_batch(
         _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def advance_one(
     cars: np.ndarray,
     grid: np.ndarray,
@@ -190,7 +190,7 @@ def advance_one(
         _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
 
 
-@njit
+@njit(error_model="numpy")
 def run_compiled(
     cars: np.ndarray,
     grid: np.ndarray,
@@ -227,7 +227,7 @@ def run_compiled(
             _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def car_speeds(cars: np.ndarray, w: np.ndarray, car: np.ndarray, out: np.ndarray) -> None:
     """Speed setting ``a`` and current mph ``20·c·a`` of the given cars (for observations)."""
     for k in range(w.shape[0]):

@@ -56,14 +56,14 @@ FREE = 7.0
 DECISION_PERIOD = 30
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _spawn(cars: np.ndarray, mr: np.ndarray, w: int, i: int) -> None:
     """Spawn routine (§2): lane then speed ``a = 1 + 0.7·u`` (2 draws)."""
     spawn_lane(cars, w, i, mrand(mr, w))
     cars[w, CA, i] = 1.0 + 0.7 * mrand(mr, w)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def reset_v1(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int) -> None:
     """``reset()`` (§2): 20 random cars (60 draws), frame 0, camera 1.5, I = 0; ``m`` is kept."""
     for i in range(N_CARS):
@@ -82,7 +82,7 @@ def reset_v1(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray,
     fs[w, F_EGO_SUM] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_pre_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int) -> int:
     """Steps 1–7 of a frame; returns 0 when the ego must decide now, else −1."""
     g = grid[w]
@@ -116,7 +116,7 @@ def frame_pre_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.nd
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_post_v1(
     cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, w: int, action: int
 ) -> None:
@@ -135,7 +135,7 @@ def frame_post_v1(
     fs[w, F_EGO_SUM] = fs[w, F_EGO_SUM] + c0a0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def observe_v1(cars: np.ndarray, grid: np.ndarray, cfg: np.ndarray, w: int, out: np.ndarray) -> None:
     """Ego input vector (§7): fixed rows ⌊52.5 + u⌋ around the ego's target lane, ÷ 7, column-major."""
     g = grid[w]

@@ -65,7 +65,7 @@ N_CELLS = N_LANES * N_ROWS
 EGO_ZONE_ROW = 56  # ⌊525/10 + 4⌋
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _spawn(cars: np.ndarray, ints: np.ndarray, w: int, i: int, controlled: bool) -> None:
     """Spawn routine (§3.6): lane from ``v``; a white car also gets a new speed from ``v``."""
     spawn_lane(cars, w, i, pm_draw(ints, w, I_PM_V))
@@ -73,7 +73,7 @@ def _spawn(cars: np.ndarray, ints: np.ndarray, w: int, i: int, controlled: bool)
         cars[w, CA, i] = 1.0 + 0.7 * (0.5 * pm_draw(ints, w, I_PM_V))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _construct(cars: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int, i: int) -> None:
     """Car constructor (§3.2): 2 ``v`` draws (flag still unset) and 1 ``Math.random`` for y."""
     cars[w, CX, i] = 0.0
@@ -85,7 +85,7 @@ def _construct(cars: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int, i: in
     cars[w, CY, i] = 10.0 * math.floor(700.0 * mrand(mr, w) / 10.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _js_remove(legal: np.ndarray, size: int, value: int) -> int:
     """Remove ``value`` from the sorted list ``legal[:size]``; if absent remove the last element."""
     lo = 0
@@ -102,7 +102,7 @@ def _js_remove(legal: np.ndarray, size: int, value: int) -> int:
     return size - 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _remove_zone(legal: np.ndarray, size: int, lane: int, row: int) -> int:
     """Remove the 16-slot exclusion zone rows ρ−4 … ρ+11 of a lane (empty slots remove the last)."""
     for j in range(16):
@@ -112,7 +112,7 @@ def _remove_zone(legal: np.ndarray, size: int, lane: int, row: int) -> int:
     return size
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def initialize_map(cars: np.ndarray, ints: np.ndarray, w: int, n_agents: int) -> None:
     """Initial placement ``initializeMap(u)`` (§3.4): 19 draws of ``u``, non-overlapping cells."""
     legal = np.arange(N_CELLS)
@@ -136,7 +136,7 @@ def initialize_map(cars: np.ndarray, ints: np.ndarray, w: int, n_agents: int) ->
     cars[w, CA, 0] = 2.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def reset_v2(
     cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int
 ) -> None:
@@ -156,7 +156,7 @@ def reset_v2(
     fs[w, F_EGO_SUM] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load_v2(cars: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int) -> None:
     """Engine load (§2, §11): run counter 1, ``u = v = PM(1)``, 20 cars constructed, a placement.
 
@@ -170,7 +170,7 @@ def load_v2(cars: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int) -> None:
     initialize_map(cars, ints, w, 0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _agent_deciding(frame: int, n_agents: int) -> int:
     """Index of the agent deciding on this frame (``G mod 30 = 3i``, i ≤ min(n, 9)), else 0."""
     phase = frame % DECISION_PERIOD
@@ -180,7 +180,7 @@ def _agent_deciding(frame: int, n_agents: int) -> int:
     return i if i <= n_agents else 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _ego_redraw_and_reward(cars: np.ndarray, g: np.ndarray, fs: np.ndarray, w: int) -> None:
     """Steps 7 and 9: redraw the ego with its new ``c`` and accumulate the reward."""
     c0a0 = cars[w, CC, 0] * cars[w, CA, 0]
@@ -188,7 +188,7 @@ def _ego_redraw_and_reward(cars: np.ndarray, g: np.ndarray, fs: np.ndarray, w: i
     fs[w, F_REWARD_ACC] = fs[w, F_REWARD_ACC] + c0a0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_pre_v2(
     cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int
 ) -> int:
@@ -227,7 +227,7 @@ def frame_pre_v2(
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def frame_post_v2(
     cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int, action: int
 ) -> None:
@@ -254,7 +254,7 @@ def frame_post_v2(
     fs[w, F_EGO_SUM] = fs[w, F_EGO_SUM] + js_max(0.0, cars[w, CC, 0] * cars[w, CA, 0])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def observe_v2(cars: np.ndarray, grid: np.ndarray, cfg: np.ndarray, w: int, car: int, out: np.ndarray) -> None:
     """Input vector of a car (§9): rows ⌊⌊y⌋/10 + h⌋ relative to its own front row, ÷ 100."""
     g = grid[w]

@@ -10,6 +10,11 @@ matter: the rows written are exactly the integers from ``⌊y/10⌋`` to ``⌊(y
 seven offsets are monotone and 5 px apart, so they leave no gap), and only those two quotients
 are needed.
 
+``row_base`` goes one step further: when ``y/10`` is at least 1e-6 away from an integer, every
+row quotient of the car — ``(y + oy)/10`` for drawing, ``(y − 10k)/10`` for the safety check —
+is ``⌊y/10⌋`` plus an integer, exactly (rounding errors are ~1e-13), so one multiplication
+serves all eleven; near a boundary each quotient is computed in its exact form.
+
 ``floor_div`` computes ``⌊fl(s/d)⌋`` — the floor of the correctly rounded quotient, as JS does —
 with a multiplication, and falls back to the real division only within 1e-7 of a boundary, where
 the two could differ. The hot loop therefore needs almost no divisions and stays bit-exact.
@@ -25,7 +30,7 @@ from numba import njit
 from sim.layout import N_LANES, N_ROWS
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def js_min(a: float, b: float) -> float:
     """JS ``Math.min`` for two numbers: NaN if either is NaN (Python's ``min`` is not)."""
     if a != a or b != b:
@@ -33,7 +38,7 @@ def js_min(a: float, b: float) -> float:
     return a if a < b else b
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def js_max(a: float, b: float) -> float:
     """JS ``Math.max`` for two numbers: NaN if either is NaN."""
     if a != a or b != b:
@@ -41,16 +46,27 @@ def js_max(a: float, b: float) -> float:
     return a if a > b else b
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def floor_div(s: float, d: float, inv: float) -> float:
     """``⌊fl(s/d)⌋`` exactly, for |s| ≪ 1e8 and d a small integer with ``inv ≈ 1/d``."""
-    n = math.floor(s * inv)
+    n = np.floor(s * inv)
     if d * n <= s and s < d * (n + 1.0) - 1e-7:
         return n
-    return math.floor(s / d)
+    return np.floor(s / d)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
+def row_base(y: float) -> float:
+    """``⌊y/10⌋`` if ``y/10`` is safely away from an integer (see module doc), else NaN."""
+    q = y * 0.1
+    n = np.floor(q)
+    f = q - n
+    if f > 1e-6 and f < 1.0 - 1e-6:
+        return n
+    return np.nan
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def cell(g: np.ndarray, lane: float, row: float, default: float) -> float:
     """Cell at already-floored (lane, row), or ``default`` outside the grid."""
     if lane >= 0.0 and lane < N_LANES and row >= 0.0 and row < N_ROWS:
@@ -58,7 +74,7 @@ def cell(g: np.ndarray, lane: float, row: float, default: float) -> float:
     return default
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def grid_get(g: np.ndarray, lane: float, row: float, default: float) -> float:
     """Cell at (⌊lane⌋, ⌊row⌋), or ``default`` outside the grid (NaN coordinates are outside)."""
     fl = math.floor(lane)
@@ -68,11 +84,16 @@ def grid_get(g: np.ndarray, lane: float, row: float, default: float) -> float:
     return default
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def draw_car(g: np.ndarray, x: float, y: float, value: float) -> None:
     """Write ``value`` into the car's footprint (one lane when settled, two while changing)."""
-    first = floor_div(y, 10.0, 0.1)
-    last = floor_div(y + 30.0, 10.0, 0.1)
+    base = row_base(y)
+    if base == base:
+        first = base
+        last = base + 3.0
+    else:
+        first = floor_div(y, 10.0, 0.1)
+        last = floor_div(y + 30.0, 10.0, 0.1)
     if not (first < N_ROWS and last >= 0.0):  # off the grid, or NaN
         return
     r0 = int(max(first, 0.0))

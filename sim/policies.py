@@ -28,27 +28,27 @@ NUM_ACTIONS = 5
 ACTION_NAMES = ("noop", "accelerate", "decelerate", "left", "right")
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _noop(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN202
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _accelerate(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN202
     return 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _decelerate(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN202
     return 2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _random(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN202
     return int(math.floor(5.0 * mrand(mr, w)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _gap(inputs: np.ndarray, width: int, ahead: int, column: int) -> int:
     n = 0
     for col in range(ahead - 1, -1, -1):
@@ -59,7 +59,7 @@ def _gap(inputs: np.ndarray, width: int, ahead: int, column: int) -> int:
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _heuristic_a(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN202
     lanes_side = pstate[0]
     ahead = pstate[1]

@@ -20,15 +20,16 @@ PM_MULTIPLIER = 16807
 _MASK32 = 0xFFFFFFFF
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _imul(a: int, b: int) -> int:
-    """Low 32 bits of a·b for 32-bit operands, without int64 overflow (JS ``Math.imul``)."""
-    lo = a * (b & 0xFFFF)
-    hi = ((a * (b >> 16)) & 0xFFFF) << 16
-    return (lo + hi) & _MASK32
+    """Low 32 bits of a·b for 32-bit operands (JS ``Math.imul``).
+
+    The int64 product may wrap, but wrapping keeps the low 32 bits, which is all we keep.
+    """
+    return (a * b) & _MASK32
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def mulberry32_next(state: int) -> tuple[int, float]:
     """One ``Math.random()`` call: returns the new state and the draw in [0, 1)."""
     s = (state + 0x6D2B79F5) & _MASK32
@@ -37,7 +38,7 @@ def mulberry32_next(state: int) -> tuple[int, float]:
     return s, ((t ^ (t >> 14)) & _MASK32) / 4294967296.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def mrand(states: np.ndarray, w: int) -> float:
     """Draw from world ``w``'s Math.random stream, advancing it in place."""
     s, u = mulberry32_next(states[w])
@@ -45,7 +46,7 @@ def mrand(states: np.ndarray, w: int) -> float:
     return u
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def pm_seed_state(seed: int) -> int:
     """Park–Miller state for a seed: ``s mod (2³¹−1)``, non-positive values fixed up by +2³¹−2."""
     g = seed % PM_MODULUS
@@ -54,13 +55,13 @@ def pm_seed_state(seed: int) -> int:
     return g
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def pm_next(state: int) -> int:
     """Park–Miller ``next()``: the new state (1 … 2³¹−2), exact in int64."""
     return (PM_MULTIPLIER * state) % PM_MODULUS
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def pm_draw(ints: np.ndarray, w: int, col: int) -> float:
     """Draw ``(next() − 1)/2147483646`` from the Park–Miller state stored at ``ints[w, col]``."""
     g = (PM_MULTIPLIER * ints[w, col]) % PM_MODULUS
@@ -68,7 +69,7 @@ def pm_draw(ints: np.ndarray, w: int, col: int) -> float:
     return (g - 1) / 2147483646.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def pm_draw_exceeds(ints: np.ndarray, w: int, col: int, threshold: float) -> bool:
     """``draw > threshold`` for a Park–Miller draw, exact, dividing only near the threshold."""
     g = (PM_MULTIPLIER * ints[w, col]) % PM_MODULUS

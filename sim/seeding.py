@@ -28,13 +28,13 @@ from sim.layout import I_PM_V, I_RUN_COUNTER
 from sim.rng import mrand, pm_seed_state
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def seed_v1(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, state: int) -> None:
     mr[w] = state & 0xFFFFFFFF
     reset(cars, fs, ints, mr, cfg, w)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def seed_v2_official(
     cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, state: int
 ) -> None:
@@ -44,7 +44,7 @@ def seed_v2_official(
     reset(cars, fs, ints, mr, cfg, w)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def seed_v2_independent(
     cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, seed: int
 ) -> None:
@@ -54,7 +54,7 @@ def seed_v2_independent(
     reset(cars, fs, ints, mr, cfg, w)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def seed_v2_training(
     cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, state: int, brain_draws: int
 ) -> None:

@@ -30,6 +30,21 @@ from tests.conftest import load_json
 CONFIG_KW = dict(lanes_side=1, patches_ahead=10, patches_behind=0)
 
 
+def _first_mismatch(got: list, expected: list, what: str) -> None:
+    """Compare per-frame records in bulk; on failure name the first frame that differs."""
+    a = np.array(got, dtype=float)
+    b = np.array(expected, dtype=float)
+    if a.shape == b.shape and np.array_equal(a, b):
+        return
+    bad = np.flatnonzero(np.any((a != b).reshape(len(a), -1), axis=1)) if a.shape == b.shape else [0]
+    k = int(bad[0])
+    where = np.argwhere(a[k] != b[k])[0] if a.shape == b.shape else ()
+    raise AssertionError(
+        f"{what}: first mismatch at frame {k}, index {tuple(int(i) for i in where)}: "
+        f"got {a[k][tuple(where)]!r} expected {b[k][tuple(where)]!r}"
+    )
+
+
 def _step_frame(sim: Simulator, w: int, policy, trace_decisions: list, cursor: list[int]) -> None:
     obs = np.zeros(sim.config.num_inputs)
     car = engine.frame_pre(sim.cars, sim.grid, sim.fs, sim.ints, sim.mrand, sim.cfg, w)
@@ -54,24 +69,38 @@ def test_v1_golden_traces_batched(reference):
     sim = Simulator(config, n_worlds=3, frames_per_run=3000)
     sim.seed_independent(1)  # world i ↦ mulberry32(1 + i) = the traces' seeds
     policy = BUILTINS["heuristic_a"].bind(config)
-    draws = [60, 60, 60]
     cursor = [0, 0, 0]
     for w, tr in enumerate(traces):
         np.testing.assert_array_equal(sim.cars[w].T, np.array(tr["initial"]["cars"]))
-    for k in range(3000):
-        for w, tr in enumerate(traces):
-            _step_frame(sim, w, policy, tr["decisions"], cursor)
-            fr = tr["frames"][k]
-            np.testing.assert_array_equal(sim.cars[w].T, np.array(fr["cars"]), err_msg=f"world {w} frame {k}")
-            assert sim.fs[w, F_CAMERA] == fr["t"]
-            assert sim.fs[w, F_REWARD_ACC] == fr["I"]
-            assert sim.ints[w, I_ACTION] == fr["m"]
-            draws[w] += len(fr["randoms"])
-            assert sim.mrand[w] == mulberry32_advance(tr["seed"], draws[w]), f"world {w} frame {k}: draw count"
+    cars: list[list] = [[], [], []]
+    scalars: list[list] = [[], [], []]
+    for _ in range(3000):
+        for w in range(3):
+            _step_frame(sim, w, policy, traces[w]["decisions"], cursor)
+            cars[w].append(sim.cars[w].T.copy())
+            scalars[w].append([sim.fs[w, F_CAMERA], sim.fs[w, F_REWARD_ACC], sim.ints[w, I_ACTION], sim.mrand[w]])
+    for w, tr in enumerate(traces):
+        _first_mismatch(cars[w], [fr["cars"] for fr in tr["frames"]], f"world {w} cars")
+        draws = 60 + np.cumsum([len(fr["randoms"]) for fr in tr["frames"]])
+        expected = [
+            [fr["t"], fr["I"], fr["m"], st]
+            for fr, st in zip(tr["frames"], _stream_positions(tr["seed"], draws), strict=True)
+        ]
+        _first_mismatch(scalars[w], expected, f"world {w} camera/I/m/stream")
     for w, tr in enumerate(traces):
         assert sim.fs[w, F_SCORE_SUM] == tr["G"]
         assert engine.run_score(sim.fs[w, F_SCORE_SUM], 3000) == tr["score"]
         assert cursor[w] == len(tr["decisions"])
+
+
+def _stream_positions(seed: int, cumulative_draws) -> list[int]:
+    """mulberry32 state after each frame's cumulative draw count (checks every frame's draws)."""
+    out, state, done = [], seed, 0
+    for n in cumulative_draws:
+        state = mulberry32_advance(state, int(n) - done)
+        done = int(n)
+        out.append(state)
+    return out
 
 
 @pytest.mark.parametrize("agents", [0, 10])
@@ -95,17 +124,22 @@ def test_v2_golden_traces_batched(reference, agents):
         assert sim.ints[w, I_RUN_COUNTER] == init["seeds"]["r"]
     policy = BUILTINS["heuristic_a"].bind(config)
     cursor = [0, 0]
-    for k in range(2000):
-        for w, tr in enumerate(traces):
-            _step_frame(sim, w, policy, tr["decisions"], cursor)
-            fr = tr["frames"][k]
-            np.testing.assert_array_equal(sim.cars[w].T, np.array(fr["cars"]), err_msg=f"world {w} frame {k}")
-            assert sim.fs[w, F_CAMERA] == fr["t"]
-            assert sim.fs[w, F_REWARD_ACC] == fr["N"]
-            assert sim.fs[w, F_SCORE_SUM] == fr["O"]
+    cars: list[list] = [[], []]
+    scalars: list[list] = [[], []]
+    for _ in range(2000):
+        for w in range(2):
+            _step_frame(sim, w, policy, traces[w]["decisions"], cursor)
+            cars[w].append(sim.cars[w].T.copy())
+            scalars[w].append([sim.fs[w, F_CAMERA], sim.fs[w, F_REWARD_ACC], sim.fs[w, F_SCORE_SUM], sim.ints[w, I_PM_V]])
+    for w, tr in enumerate(traces):
+        _first_mismatch(cars[w], [fr["cars"] for fr in tr["frames"]], f"world {w} cars")
+        v_state = tr["initial"]["v_state"]
+        expected = []
+        for fr in tr["frames"]:  # the traffic generator's position after each frame
             v_draws = [value for gen, value in fr["draws"] if gen == "v"]
-            if v_draws:
-                assert sim.ints[w, I_PM_V] == v_draws[-1], f"world {w} frame {k}: traffic draws"
+            v_state = v_draws[-1] if v_draws else v_state
+            expected.append([fr["t"], fr["N"], fr["O"], v_state])
+        _first_mismatch(scalars[w], expected, f"world {w} camera/N/O/traffic")
     for w, tr in enumerate(traces):
         assert engine.run_score(sim.fs[w, F_SCORE_SUM], 2000) == tr["score"]
         assert cursor[w] == len(tr["decisions"])

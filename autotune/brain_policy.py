@@ -1,0 +1,398 @@
+"""A trained convnetjs deepqlearn brain as a compiled simulator policy, exact to the original's draws.
+
+Evaluation-time behaviour of ``deepqlearn.Brain.forward`` with ``learning = false``
+(engine_spec.md §10.2–§10.6, engine_spec_v2.md §8.3, §13), per decision of a car:
+
+* ``forward_passes += 1``. While ``forward_passes ≤ temporal_window`` (warm-up, the first tw
+  decisions of a brain's life) no input is built and the action is random: v1 ``⌊5u⌋`` (one
+  ``Math.random`` draw), v2 always 0 without a draw.
+* Otherwise the input ``[x_t, x_{t−1}, e(a_{t−1}), …]`` is built (``e(a)`` = one-hot × num_states),
+  ``rf`` is drawn (always), and if ``rf < ε_test`` the action is ``⌊5u⌋`` (one more draw); else the
+  greedy action — ``policy()`` first allocates ``new Vol(1, 1, net_inputs)``, whose constructor draws
+  ``net_inputs`` Gaussians from the Marsaglia-polar generator with its **global** one-value cache
+  (2 ``Math.random`` draws per attempt, attempts with u² + v² = 0 or > 1 rejected), then runs the
+  forward pass (no further draws) and scans the 5 Q-values with strict ``>``.
+* The windows shift: the state, and the action, are appended (``window_size = max(tw, 2)``).
+
+Building the brain (``new deepqlearn.Brain``) draws the initial fc weights: ``Σ in·out`` Gaussians
+(one ``Vol(1, 1, in)`` per neuron; nothing else in the constructor, ``value_net.fromJSON`` or the
+trainer draws). ``prepare()`` replays those draws from ``mulberry32(seed)`` so that the protocol
+starts from the right ``Math.random`` state *and* Gaussian-cache state.
+
+v2 agents (car i = 1…n) own brain copies. The copies taken at engine load make at most tw
+decisions, all in the v2 warm-up (action 0, no draw), before the engine re-copies the main brain
+once at the first frame where its ``forward_passes > temporal_window`` (spec v2 §8.3). Nothing
+changes the main brain between that frame and the next agent decision, so the re-copy (windows,
+counters) is done lazily at that decision. ``reset_seed(0)`` only feeds the v2 warm-up's
+``⌊nextFloat()⌋·5`` = 0, so it needs no state.
+
+All mutable state lives in numba arrays (``pstate``) with a leading world axis: the sequential
+protocols use world 0; batched Python use (``__call__``) keeps one set of brains per world.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from autotune.forward import FlatNet, argmax_js, flatten, forward_flat
+from autotune.netjson import NetFormatError, NetSettings, validate
+from autotune.netspec import FC, NUM_ACTIONS, ConvNet
+from sim.config import ConfigError, EngineConfig
+from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, evaluate
+from sim.rng import mrand, mulberry32_advance, mulberry32_next
+
+MAX_BRAINS = 11  # the ego + up to 10 agents
+V1_LOAD_DRAWS = 60  # loading the v1 engine constructs 20 cars, 3 draws each
+
+# gcfg (int64) fields
+G_RULESET, G_TW, G_NUM_STATES, G_NET_INPUTS, G_WINDOW, G_N_BRAINS = range(6)
+N_GCFG = 6
+# gflt (float64) fields
+F_EPSILON = 0
+N_GFLT = 1
+# per-world state
+W_CACHE, W_COPIED = range(2)
+N_WSTATE = 2
+# per-brain state
+B_FP, B_HEAD = range(2)
+N_BSTATE = 2
+
+RULESET_V1 = 1
+RULESET_V2 = 2
+
+
+@njit(cache=True, inline="always")
+def gauss_skip(mr: np.ndarray, w: int, cache: int, n: int) -> int:
+    """Consume the ``Math.random`` draws of ``n`` ``gaussRandom()`` calls; returns the new cache flag.
+
+    The values are never needed (the Vol is overwritten), only the draw count and the cache.
+    """
+    if n <= 0:
+        return cache
+    m = n - 1 if cache != 0 else n  # values still needed after using a cached one
+    for _ in range((m + 1) // 2):
+        while True:
+            u = 2.0 * mrand(mr, w) - 1.0
+            v = 2.0 * mrand(mr, w) - 1.0
+            r = u * u + v * v
+            if r == 0.0 or r > 1.0:
+                continue
+            break
+    return 1 if m % 2 == 1 else 0
+
+
+@njit(cache=True)
+def replay_build(state: int, cache: int, n_gauss: int) -> tuple[int, int, int]:
+    """Replay ``n_gauss`` Gaussian draws from mulberry32 ``state``: (new state, cache flag, uniform draws)."""
+    mr = np.zeros(1, dtype=np.int64)
+    mr[0] = state
+    draws = 0
+    c = cache
+    if n_gauss > 0:
+        m = n_gauss - 1 if c != 0 else n_gauss
+        for _ in range((m + 1) // 2):
+            while True:
+                u = 2.0 * mrand(mr, 0) - 1.0
+                v = 2.0 * mrand(mr, 0) - 1.0
+                draws += 2
+                r = u * u + v * v
+                if r == 0.0 or r > 1.0:
+                    continue
+                break
+        c = 1 if m % 2 == 1 else 0
+    return mr[0], c, draws
+
+
+@njit(cache=True, inline="always")
+def _decide(inputs, mr, w, b, codes, params, gcfg, gflt, wstate, bstate, states, actions, netin, buf):  # noqa: ANN001, ANN202
+    tw = gcfg[G_TW]
+    ns = gcfg[G_NUM_STATES]
+    window = gcfg[G_WINDOW]
+    fp = bstate[w, b, B_FP] + 1
+    bstate[w, b, B_FP] = fp
+    head = bstate[w, b, B_HEAD]
+    if fp > tw:
+        rf = mrand(mr, w)
+        if rf < gflt[F_EPSILON]:
+            action = int(math.floor(mrand(mr, w) * 5.0))
+        else:
+            wstate[w, W_CACHE] = gauss_skip(mr, w, wstate[w, W_CACHE], gcfg[G_NET_INPUTS])
+            for d in range(ns):
+                netin[d] = inputs[d]
+            pos = ns
+            for k in range(tw):
+                idx = (head - k) % window
+                for d in range(ns):
+                    netin[pos + d] = states[w, b, idx, d]
+                pos += ns
+                a = actions[w, b, idx]
+                for q in range(NUM_ACTIONS):
+                    netin[pos + q] = float(ns) if q == a else 0.0
+                pos += NUM_ACTIONS
+            out = forward_flat(codes, params, netin, buf)
+            action = argmax_js(buf, out, NUM_ACTIONS)
+    elif gcfg[G_RULESET] == RULESET_V1:
+        action = int(math.floor(mrand(mr, w) * 5.0))
+    else:
+        action = 0
+    head = (head + 1) % window
+    bstate[w, b, B_HEAD] = head
+    for d in range(ns):
+        states[w, b, head, d] = inputs[d]
+    actions[w, b, head] = action
+    return action
+
+
+@njit(cache=True)
+def brain_policy(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN201
+    """Compiled policy ``(inputs, lane, car, reward, mr, w, pstate) -> action`` (sim.policies protocol)."""
+    codes, params, gcfg, gflt, wstate, bstate, states, actions, netin, buf = pstate
+    b = car
+    if car > 0:
+        n_brains = gcfg[G_N_BRAINS]
+        if car >= n_brains:
+            return 0
+        if wstate[w, W_COPIED] == 0:
+            if bstate[w, 0, B_FP] > gcfg[G_TW]:
+                # the engine's one re-copy of the main brain into every agent (spec v2 §8.3)
+                for j in range(1, n_brains):
+                    for f in range(bstate.shape[2]):
+                        bstate[w, j, f] = bstate[w, 0, f]
+                    for k in range(states.shape[2]):
+                        actions[w, j, k] = actions[w, 0, k]
+                        for d in range(states.shape[3]):
+                            states[w, j, k, d] = states[w, 0, k, d]
+                wstate[w, W_COPIED] = 1
+            else:
+                return 0  # load-time copy, still in the v2 warm-up: action 0, no draw
+    return _decide(inputs, mr, w, b, codes, params, gcfg, gflt, wstate, bstate, states, actions, netin, buf)
+
+
+@njit(cache=True)
+def _decide_rows(inputs, cars, worlds, mr, pstate, out):  # noqa: ANN001, ANN202
+    for r in range(inputs.shape[0]):
+        out[r] = brain_policy(inputs[r], 0, cars[r], math.nan, mr, worlds[r], pstate)
+
+
+def build_gaussians(net: ConvNet) -> int:
+    """Gaussians drawn by ``new deepqlearn.Brain`` for this architecture: ``Σ in·out`` over fc layers."""
+    return int(sum(w.size for w, _b in net.params))
+
+
+def build_draws(net: ConvNet, seed: int, cache: int = 0) -> tuple[int, int, int]:
+    """(mulberry32 state after the brain build, Gaussian cache flag, number of ``Math.random`` draws)."""
+    s, c, n = replay_build(int(seed) & 0xFFFFFFFF, cache, build_gaussians(net))
+    return int(s), int(c), int(n)
+
+
+class BrainPolicy:
+    """An evaluation-time deepqlearn brain (``learning = false``) driving the ego and the v2 agents.
+
+    ``compiled``/``pstate`` plug into ``sim.protocols.evaluate``; call ``prepare(protocol, seed)``
+    first — it resets the brains and returns the ``stream_state`` to pass to ``evaluate``.
+    ``__call__(obs)`` answers batched observations (one brain set per world).
+    """
+
+    stateful = True
+
+    def __init__(
+        self,
+        net: ConvNet,
+        settings: NetSettings,
+        ruleset: str | None = None,
+        *,
+        epsilon: float | None = None,
+        n_worlds: int = 1,
+        name: str | None = None,
+    ) -> None:
+        validate(net, settings)
+        self.net = net
+        self.settings = settings
+        self.ruleset = ruleset or settings.engine
+        if self.ruleset not in ("v1", "v2"):
+            raise ConfigError(f"ruleset: '{self.ruleset}' is not a ruleset; use v1 or v2")
+        self.epsilon = settings.epsilon_test_time if epsilon is None else float(epsilon)
+        self.name = name or f"brain[{net.hidden or 'linear'}]"
+        self.flat: FlatNet = flatten(net)
+        tw = settings.temporal_window
+        self.gcfg = np.zeros(N_GCFG, dtype=np.int64)
+        self.gcfg[G_RULESET] = RULESET_V1 if self.ruleset == "v1" else RULESET_V2
+        self.gcfg[G_TW] = tw
+        self.gcfg[G_NUM_STATES] = settings.num_inputs
+        self.gcfg[G_NET_INPUTS] = settings.net_inputs
+        self.gcfg[G_WINDOW] = max(tw, 2)
+        self.gcfg[G_N_BRAINS] = MAX_BRAINS
+        self.gflt = np.array([self.epsilon], dtype=np.float64)
+        self.netin = np.zeros(settings.net_inputs)
+        self.buf = np.zeros((2, max(self.flat.max_width, settings.net_inputs)))
+        self.stream_state: int | None = None
+        self.reset(n_worlds)
+
+    compiled = staticmethod(brain_policy)
+
+    def reset(self, n_worlds: int = 1, caches: np.ndarray | None = None) -> None:
+        """Fresh brains (no history, ``forward_passes = 0``) for ``n_worlds`` worlds."""
+        window = int(self.gcfg[G_WINDOW])
+        ns = int(self.gcfg[G_NUM_STATES])
+        self.n_worlds = n_worlds
+        self.wstate = np.zeros((n_worlds, N_WSTATE), dtype=np.int64)
+        if caches is not None:
+            self.wstate[:, W_CACHE] = caches
+        self.bstate = np.zeros((n_worlds, MAX_BRAINS, N_BSTATE), dtype=np.int64)
+        self.bstate[:, :, B_HEAD] = window - 1
+        self.states = np.zeros((n_worlds, MAX_BRAINS, window, ns))
+        self.actions = np.zeros((n_worlds, MAX_BRAINS, window), dtype=np.int64)
+
+    @property
+    def pstate(self) -> tuple[np.ndarray, ...]:
+        return (
+            self.flat.codes,
+            self.flat.params,
+            self.gcfg,
+            self.gflt,
+            self.wstate,
+            self.bstate,
+            self.states,
+            self.actions,
+            self.netin,
+            self.buf,
+        )
+
+    def prepare(self, protocol: str, seed: int | None = None, runs: int | None = None) -> int | None:
+        """Reset the brains as the protocol's harness builds them; returns ``stream_state`` for ``evaluate``.
+
+        * v2-official: ``mulberry32(seed)``, brain built → the state before the engine load;
+        * v1-original: ``mulberry32(seed)``, brain built, v1 engine loaded (60 draws) → the state
+          before ``doEvalRun``;
+        * v1-distribution: brain built from ``mulberry32(seed)`` (only its Gaussian cache survives the
+          per-run re-seeding) → None;
+        * custom: world i's brain as if built from ``mulberry32(seed + i)`` → None.
+        """
+        if protocol not in PROTOCOLS:
+            raise ConfigError(f"protocol: '{protocol}' is not a protocol; use one of {', '.join(PROTOCOLS)}")
+        proto = PROTOCOLS[protocol]
+        seed = proto.seed if seed is None else int(seed)
+        if protocol == "custom":
+            n = proto.runs if runs is None else runs
+            caches = np.array([build_draws(self.net, seed + i)[1] for i in range(n)], dtype=np.int64)
+            self.reset(n, caches)
+            self.stream_state = None
+            return None
+        state, cache, _draws = build_draws(self.net, seed)
+        self.reset(1, np.array([cache], dtype=np.int64))
+        if protocol == "v1-original":
+            state = mulberry32_advance(state, V1_LOAD_DRAWS)
+        elif protocol == "v1-distribution":
+            state = None
+        self.stream_state = state
+        return state
+
+    def _grow(self, n_worlds: int) -> None:
+        old = (self.wstate, self.bstate, self.states, self.actions)
+        n_old = self.n_worlds
+        self.reset(n_worlds)
+        for new, prev in zip((self.wstate, self.bstate, self.states, self.actions), old):
+            new[:n_old] = prev
+
+    def __call__(self, obs: Any) -> np.ndarray:
+        """Batched decisions: one row per (world, car); draws from each world's Math.random stream."""
+        n = len(obs)
+        out = np.zeros(n, dtype=np.int64)
+        if n == 0:
+            return out
+        worlds = np.ascontiguousarray(obs.world, dtype=np.int64)
+        if int(worlds.max()) >= self.n_worlds:
+            self._grow(int(worlds.max()) + 1)
+        inputs = np.ascontiguousarray(obs.inputs, dtype=np.float64)
+        cars = np.ascontiguousarray(obs.car, dtype=np.int64)
+        _decide_rows(inputs, cars, worlds, obs._mrand, self.pstate, out)
+        return out
+
+
+def engine_config(
+    settings: NetSettings, ruleset: str | None = None, other_agents: int | None = None
+) -> EngineConfig:
+    """The simulator configuration a net is evaluated in (v1: no agents; v2: the net's otherAgents, else 0)."""
+    ruleset = ruleset or settings.engine
+    if ruleset == "v1":
+        if other_agents:
+            raise ConfigError("other_agents: the v1 engine has no other agents; use --ruleset v2")
+        agents = 0
+    else:
+        agents = other_agents if other_agents is not None else (settings.other_agents or 0)
+        agents = min(agents, 10)  # the engine caps at 10 from the first reset (spec v2 §8.1)
+    return EngineConfig(
+        ruleset=ruleset,
+        lanes_side=settings.lanes_side,
+        patches_ahead=settings.patches_ahead,
+        patches_behind=settings.patches_behind,
+        other_agents=agents,
+    )
+
+
+def resolve_ruleset(settings: NetSettings, protocol: str, ruleset: str | None) -> str:
+    """Explicit ruleset, else the protocol's, else the net's own engine."""
+    if ruleset:
+        return ruleset
+    proto = PROTOCOLS.get(protocol)
+    if proto is not None and proto.ruleset is not None:
+        return proto.ruleset
+    return settings.engine
+
+
+def evaluate_net(
+    net: ConvNet,
+    settings: NetSettings,
+    protocol: str = "v2-official",
+    *,
+    ruleset: str | None = None,
+    seed: int | None = None,
+    other_agents: int | None = None,
+    runs: int | None = None,
+    frames: int | None = None,
+    threads: int | None = None,
+    epsilon: float | None = None,
+    progress: ProgressFn | None = None,
+    name: str | None = None,
+) -> EvalResult:
+    """Evaluate a trained net exactly as the original harness would (per-run scores in run order).
+
+    ``protocol``: v2-official, v1-original, v1-distribution or custom (``sim.protocols``);
+    ``ruleset`` defaults to the protocol's (custom: the net's engine); ``other_agents`` (v2)
+    defaults to the net's ``otherAgents`` (0 when unset).
+    """
+    ruleset = resolve_ruleset(settings, protocol, ruleset)
+    config = engine_config(settings, ruleset, other_agents)
+    policy = BrainPolicy(net, settings, ruleset, epsilon=epsilon, name=name)
+    proto = PROTOCOLS.get(protocol)
+    n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
+    stream_state = policy.prepare(protocol, seed, n_runs)
+    return evaluate(
+        config,
+        policy,
+        protocol,
+        seed=seed,
+        runs=runs,
+        frames=frames,
+        threads=threads,
+        stream_state=stream_state,
+        policy_name=policy.name,
+        progress=progress,
+    )
+
+
+__all__ = [
+    "BrainPolicy",
+    "brain_policy",
+    "build_draws",
+    "build_gaussians",
+    "engine_config",
+    "evaluate_net",
+    "FC",
+    "NetFormatError",
+    "mulberry32_next",
+]

@@ -1,0 +1,748 @@
+"""convnetjs network descriptions: layer definitions, ``layer_defs`` expansion, ``ConvNet``, torch bridges.
+
+Everything here follows engine_spec.md §10.5 and §10.9 (the convnetjs build shipped with both
+DeepTraffic engines). A network exists at two levels:
+
+* **layer definitions** ("defs") — what a user writes in ``layer_defs`` (``FC(36, "tanh")``,
+  ``SVM(14)``, ``Regression(5)``); the crowd's compact string form ``fc:36:tanh|svm:14|lrn`` parses to
+  the hidden part of that list (``parse_hidden``).
+* **expanded layers** — what ``Net.makeLayers`` actually builds (``expand``): loss layers are
+  preceded by an inserted ``FC(n)``, an fc's ``activation`` becomes its own layer, a ``drop_prob``
+  adds a ``Dropout``, every ``FC`` gets its ``bias_pref`` (0.1 after relu, else 0.0). Expanded
+  ``FC`` layers never carry an activation.
+
+``ConvNet`` = the expanded layer tuple + float64 parameters, one ``(weights (out, in), biases (out,))``
+pair per ``FC`` in order. The exact prediction-mode forward pass is ``autotune.forward``; JSON
+import/export is ``autotune.netjson``; the simulator policy is ``autotune.brain_policy``.
+
+API for the training side (torch)::
+
+    from autotune.netspec import Input, FC, Regression, expand, build_torch, to_torch, from_torch, init_convnet
+
+    layers = expand([Input(net_inputs), FC(36, "tanh"), FC(24, "tanh"), Regression(5)])
+    module = build_torch(layers, dtype=torch.float32)   # nn.Sequential subclass; Linear i ↔ FC i
+    ...train module...
+    net = from_torch(module, layers)                    # ConvNet (float64) with the trained weights
+    # export: autotune.netjson.dumps_net(net) / write_net(path, net, settings)
+    # evaluate: autotune.brain_policy.evaluate_net(net, settings, "v2-official")
+
+    to_torch(net)                                        # ConvNet → module with its weights (float64 default)
+    init_convnet(layers, seed)                           # convnetjs-style initial weights (N(0, 1/fan_in), biases)
+
+The torch module mirrors convnetjs in both modes where convnetjs differs from torch defaults:
+``ConvnetDropout`` zeroes with probability p in training **without rescaling** and multiplies by p
+in eval mode (the convnetjs prediction bug); a mid-network ``SVM`` blocks gradients (convnetjs
+zeroes them); a mid-network ``Softmax`` passes its own outputs down as the input gradient.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any, Union
+
+import numpy as np
+
+NUM_ACTIONS = 5
+ACTIVATIONS = ("relu", "tanh", "sigmoid", "maxout")
+LRN_DEFAULTS = {"k": 1.0, "n": 3, "alpha": 0.1, "beta": 0.75}  # used when a hidden-layer string says just "lrn"
+
+
+class NetSpecError(ValueError):
+    """An invalid layer definition or network; the message names the field."""
+
+
+# --------------------------------------------------------------------------------------------
+# layer definitions (frozen); after ``expand`` the same classes describe the built layers
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Input:
+    """Input volume ``out_sx × out_sy × out_depth`` (deepqlearn always feeds a flat 1×1×N vector)."""
+
+    out_depth: int
+    out_sx: int = 1
+    out_sy: int = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class FC:
+    """Fully connected ``num_neurons`` outputs; ``activation``/``drop_prob`` add layers on expansion."""
+
+    num_neurons: int
+    activation: str | None = None
+    bias_pref: float | None = None
+    drop_prob: float | None = None
+    group_size: int | None = None  # maxout group size when activation == "maxout"
+    l1_decay_mul: float = 0.0
+    l2_decay_mul: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Relu:
+    """``max(0, x)`` (convnetjs: values < 0 set to 0; NaN passes)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Tanh:
+    """``(e^{2x} − 1)/(e^{2x} + 1)`` with ``Math.exp`` (not a library tanh)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Sigmoid:
+    """``1/(1 + e^{−x})``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Maxout:
+    """Max over consecutive groups of ``group_size`` inputs (ties keep the lowest index); ⌊n/g⌋ outputs."""
+
+    group_size: int = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Dropout:
+    """Training: zero each value with probability ``drop_prob``; prediction: multiply by ``drop_prob`` (bug)."""
+
+    drop_prob: float = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class SVM:
+    """SVM loss layer (identity forward); the def inserts ``FC(num_classes)`` before it."""
+
+    num_classes: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Softmax:
+    """Softmax loss layer ``e^{x−max}/Σ``; the def inserts ``FC(num_classes)`` before it."""
+
+    num_classes: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Regression:
+    """Regression loss layer (identity forward); the def inserts ``FC(num_neurons)`` before it."""
+
+    num_neurons: int
+
+
+@dataclasses.dataclass(frozen=True)
+class LRN:
+    """Local response normalisation ``x_i/(k + (α/n)·Σ_{|j−i|≤⌊n/2⌋} x_j²)^β`` (1-D case)."""
+
+    k: float
+    n: int
+    alpha: float
+    beta: float
+
+
+Layer = Union[Input, FC, Relu, Tanh, Sigmoid, Maxout, Dropout, SVM, Softmax, Regression, LRN]
+LAYER_TYPES = {
+    "input": Input,
+    "fc": FC,
+    "relu": Relu,
+    "tanh": Tanh,
+    "sigmoid": Sigmoid,
+    "maxout": Maxout,
+    "dropout": Dropout,
+    "svm": SVM,
+    "softmax": Softmax,
+    "regression": Regression,
+    "lrn": LRN,
+}
+TYPE_NAMES = {cls: name for name, cls in LAYER_TYPES.items()}
+
+
+def layer_type(layer: Layer) -> str:
+    """convnetjs ``layer_type`` string of a layer object."""
+    return TYPE_NAMES[type(layer)]
+
+
+# --------------------------------------------------------------------------------------------
+# expansion (convnetjs desugar) and sizes
+# --------------------------------------------------------------------------------------------
+
+
+def expand(defs: Sequence[Layer]) -> tuple[Layer, ...]:
+    """convnetjs ``Net.makeLayers`` desugaring of a ``layer_defs`` list (spec §10.9), in list order."""
+    out: list[Layer] = []
+    for i, d in enumerate(defs):
+        if not isinstance(d, tuple(LAYER_TYPES.values())):
+            raise NetSpecError(f"layer_defs[{i}]: {d!r} is not a layer definition")
+        if isinstance(d, (SVM, Softmax)):
+            out.append(FC(d.num_classes, bias_pref=0.0))
+        elif isinstance(d, Regression):
+            out.append(FC(d.num_neurons, bias_pref=0.0))
+        if isinstance(d, FC):
+            bias = d.bias_pref
+            if bias is None:
+                bias = 0.1 if d.activation == "relu" else 0.0
+            out.append(FC(d.num_neurons, bias_pref=bias, l1_decay_mul=d.l1_decay_mul, l2_decay_mul=d.l2_decay_mul))
+            if d.activation == "relu":
+                out.append(Relu())
+            elif d.activation == "tanh":
+                out.append(Tanh())
+            elif d.activation == "sigmoid":
+                out.append(Sigmoid())
+            elif d.activation == "maxout":
+                out.append(Maxout(d.group_size if d.group_size is not None else 2))
+            # any other activation string adds nothing (convnetjs logs a message)
+            if d.drop_prob is not None:
+                out.append(Dropout(d.drop_prob))
+        else:
+            out.append(d)
+    return tuple(out)
+
+
+def collapse(layers: Sequence[Layer]) -> tuple[Layer, ...]:
+    """Inverse of ``expand`` for a built layer list: fc+activation → ``FC(n, act)``, fc(n)+svm(n) → ``SVM(n)``…
+
+    ``expand(collapse(layers))`` has the same layers and fc shapes (bias_pref may differ; it only
+    matters for fresh initialisation).
+    """
+    out: list[Layer] = []
+    i = 0
+    n = len(layers)
+    while i < n:
+        layer = layers[i]
+        nxt = layers[i + 1] if i + 1 < n else None
+        if isinstance(layer, FC):
+            width = layer.num_neurons
+            if isinstance(nxt, SVM) and nxt.num_classes == width:
+                out.append(SVM(width))
+                i += 2
+                continue
+            if isinstance(nxt, Softmax) and nxt.num_classes == width:
+                out.append(Softmax(width))
+                i += 2
+                continue
+            if isinstance(nxt, Regression) and nxt.num_neurons == width:
+                out.append(Regression(width))
+                i += 2
+                continue
+            act = None
+            group = None
+            step = 1
+            if isinstance(nxt, (Relu, Tanh, Sigmoid, Maxout)):
+                act = layer_type(nxt)
+                group = nxt.group_size if isinstance(nxt, Maxout) and nxt.group_size != 2 else None
+                step = 2
+            drop = None
+            after = layers[i + step] if i + step < n else None
+            if isinstance(after, Dropout):
+                drop = after.drop_prob
+                step += 1
+            bias = layer.bias_pref
+            default_bias = 0.1 if act == "relu" else 0.0
+            out.append(
+                FC(
+                    width,
+                    act,
+                    bias_pref=None if bias is None or bias == default_bias else bias,
+                    drop_prob=drop,
+                    group_size=group,
+                    l1_decay_mul=layer.l1_decay_mul,
+                    l2_decay_mul=layer.l2_decay_mul,
+                )
+            )
+            i += step
+            continue
+        out.append(layer)
+        i += 1
+    return tuple(out)
+
+
+def layer_sizes(layers: Sequence[Layer]) -> list[tuple[int, int]]:
+    """(input size, output size) of every expanded layer; the first layer must be ``Input``."""
+    if not layers or not isinstance(layers[0], Input):
+        raise NetSpecError("layers[0]: the first layer must be an input layer")
+    sizes: list[tuple[int, int]] = []
+    prev = 0
+    for i, layer in enumerate(layers):
+        if isinstance(layer, Input):
+            if i != 0:
+                raise NetSpecError(f"layers[{i}]: an input layer is only allowed first")
+            for name in ("out_depth", "out_sx", "out_sy"):
+                v = getattr(layer, name)
+                if not _is_int(v) or v < 1:
+                    raise NetSpecError(f"layers[{i}].{name}: must be a positive integer, got {v!r}")
+            out = layer.out_sx * layer.out_sy * layer.out_depth
+            sizes.append((out, out))
+        elif isinstance(layer, FC):
+            if layer.activation is not None or layer.drop_prob is not None:
+                raise NetSpecError(f"layers[{i}]: fc with activation/drop_prob is a definition; expand() it first")
+            if not _is_int(layer.num_neurons) or layer.num_neurons < 1:
+                raise NetSpecError(f"layers[{i}].num_neurons: must be a positive integer, got {layer.num_neurons!r}")
+            out = layer.num_neurons
+            sizes.append((prev, out))
+        elif isinstance(layer, Maxout):
+            if not _is_int(layer.group_size) or layer.group_size < 1:
+                raise NetSpecError(f"layers[{i}].group_size: must be a positive integer, got {layer.group_size!r}")
+            out = prev // layer.group_size
+            if out < 1:
+                raise NetSpecError(f"layers[{i}]: maxout group_size {layer.group_size} exceeds its {prev} inputs")
+            sizes.append((prev, out))
+        elif isinstance(layer, (SVM, Softmax)):
+            if layer.num_classes != prev:
+                raise NetSpecError(f"layers[{i}].num_classes: {layer.num_classes} ≠ its {prev} inputs")
+            sizes.append((prev, prev))
+        elif isinstance(layer, Regression):
+            if layer.num_neurons != prev:
+                raise NetSpecError(f"layers[{i}].num_neurons: {layer.num_neurons} ≠ its {prev} inputs")
+            sizes.append((prev, prev))
+        elif isinstance(layer, Dropout):
+            if not (isinstance(layer.drop_prob, (int, float)) and math.isfinite(layer.drop_prob)):
+                raise NetSpecError(f"layers[{i}].drop_prob: must be a finite number, got {layer.drop_prob!r}")
+            sizes.append((prev, prev))
+        elif isinstance(layer, LRN):
+            if not _is_int(layer.n) or layer.n < 1:
+                raise NetSpecError(f"layers[{i}].n: must be a positive integer, got {layer.n!r}")
+            for name in ("k", "alpha", "beta"):
+                v = getattr(layer, name)
+                if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+                    raise NetSpecError(f"layers[{i}].{name}: must be a finite number, got {v!r}")
+            sizes.append((prev, prev))
+        elif isinstance(layer, (Relu, Tanh, Sigmoid)):
+            sizes.append((prev, prev))
+        else:
+            raise NetSpecError(f"layers[{i}]: {layer!r} is not a layer")
+        prev = sizes[-1][1]
+    return sizes
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+# --------------------------------------------------------------------------------------------
+# ConvNet
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ConvNet:
+    """Expanded layers + float64 parameters: ``params[k] = (weights (out, in), biases (out,))`` of the k-th FC."""
+
+    layers: tuple[Layer, ...]
+    params: tuple[tuple[np.ndarray, np.ndarray], ...]
+
+    def __post_init__(self) -> None:
+        sizes = layer_sizes(self.layers)
+        fcs = [(i, s) for i, (layer, s) in enumerate(zip(self.layers, sizes)) if isinstance(layer, FC)]
+        if len(fcs) != len(self.params):
+            raise NetSpecError(f"params: {len(self.params)} (weights, biases) pairs for {len(fcs)} fc layers")
+        fixed = []
+        for k, ((i, (n_in, n_out)), (w, b)) in enumerate(zip(fcs, self.params)):
+            w = np.ascontiguousarray(w, dtype=np.float64)
+            b = np.ascontiguousarray(b, dtype=np.float64)
+            if w.shape != (n_out, n_in):
+                raise NetSpecError(f"layers[{i}]: weights shape {w.shape}, expected ({n_out}, {n_in})")
+            if b.shape != (n_out,):
+                raise NetSpecError(f"layers[{i}]: biases shape {b.shape}, expected ({n_out},)")
+            fixed.append((w, b))
+        object.__setattr__(self, "params", tuple(fixed))
+
+    @property
+    def input_size(self) -> int:
+        first = self.layers[0]
+        assert isinstance(first, Input)
+        return first.out_sx * first.out_sy * first.out_depth
+
+    @property
+    def output_size(self) -> int:
+        return layer_sizes(self.layers)[-1][1]
+
+    @property
+    def fc_shapes(self) -> list[tuple[int, int]]:
+        """(out, in) of every fc layer, in order."""
+        return [w.shape for w, _b in self.params]  # type: ignore[misc]
+
+    @property
+    def n_params(self) -> int:
+        return int(sum(w.size + b.size for w, b in self.params))
+
+    @property
+    def hidden(self) -> str:
+        """The crowd's ``hidden_layers`` string of this net (layers between input and the final regression)."""
+        defs = collapse(self.layers)
+        if defs and isinstance(defs[-1], Regression):
+            defs = defs[:-1]
+        return format_hidden(defs[1:])
+
+    def same_as(self, other: ConvNet) -> bool:
+        """Identical layers and bit-identical parameters (NaN payloads compared bitwise)."""
+        if self.layers != other.layers or len(self.params) != len(other.params):
+            return False
+        for (w1, b1), (w2, b2) in zip(self.params, other.params):
+            if w1.shape != w2.shape or b1.shape != b2.shape:
+                return False
+            if not (np.array_equal(w1.view(np.int64), w2.view(np.int64)) and np.array_equal(b1.view(np.int64), b2.view(np.int64))):
+                return False
+        return True
+
+
+def fc_bias_prefs(layers: Sequence[Layer]) -> list[float]:
+    """Initial bias value of every fc (its ``bias_pref``; 0.0 when unset)."""
+    return [float(layer.bias_pref or 0.0) for layer in layers if isinstance(layer, FC)]
+
+
+def init_convnet(layers: Sequence[Layer], seed: int = 0) -> ConvNet:
+    """Fresh convnetjs-style parameters: weights N(0, std √(1/fan_in)), biases = ``bias_pref``.
+
+    Uses numpy's generator (not the JS stream); for a JS-exact initialisation see
+    ``autotune.brain_policy.build_draws`` (the draw count) — the values themselves are never needed
+    for evaluation because trained weights replace them.
+    """
+    layers = tuple(layers)
+    sizes = layer_sizes(layers)
+    rng = np.random.default_rng(seed)
+    params = []
+    for layer, (n_in, n_out) in zip(layers, sizes):
+        if isinstance(layer, FC):
+            w = rng.standard_normal((n_out, n_in)) * math.sqrt(1.0 / n_in)
+            b = np.full(n_out, float(layer.bias_pref or 0.0))
+            params.append((w, b))
+    return ConvNet(layers, tuple(params))
+
+
+# --------------------------------------------------------------------------------------------
+# hidden-layer strings (crowd CSV / config.json form)
+# --------------------------------------------------------------------------------------------
+
+
+def _num(text: str, where: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise NetSpecError(f"{where}: '{text}' is not a number") from None
+
+
+def _int(text: str, where: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise NetSpecError(f"{where}: '{text}' is not an integer") from None
+    if v < 1:
+        raise NetSpecError(f"{where}: must be ≥ 1, got {v}")
+    return v
+
+
+def parse_hidden(text: str | None) -> tuple[Layer, ...]:
+    """Parse ``fc:36:tanh|svm:14|fc:10:maxout|lrn`` into layer definitions (no input, no final regression).
+
+    Tokens: ``fc:N[:act][:key=value…]`` (keys ``drop_prob``, ``bias_pref``, ``group_size``),
+    ``svm:N``, ``softmax:N``, ``regression:N``, ``relu``, ``tanh``, ``sigmoid``, ``maxout[:g]``,
+    ``dropout:p``, ``lrn[:k:n:alpha:beta]`` (bare ``lrn``: k=1, n=3, α=0.1, β=0.75). Empty / "(none: linear)" → ().
+    """
+    if text is None:
+        return ()
+    text = text.strip()
+    if text in ("", "(none: linear)", "none", "linear"):
+        return ()
+    out: list[Layer] = []
+    for j, token in enumerate(text.split("|")):
+        where = f"hidden_layers[{j}] '{token}'"
+        parts = [p.strip() for p in token.strip().split(":")]
+        kind = parts[0].lower()
+        args = parts[1:]
+        if kind == "fc":
+            if not args:
+                raise NetSpecError(f"{where}: fc needs a size, e.g. fc:36:tanh")
+            n = _int(args[0], where)
+            act = None
+            extra: dict[str, Any] = {}
+            for a in args[1:]:
+                if "=" in a:
+                    key, val = a.split("=", 1)
+                    if key == "drop_prob":
+                        extra[key] = _num(val, where)
+                    elif key == "bias_pref":
+                        extra[key] = _num(val, where)
+                    elif key == "group_size":
+                        extra[key] = _int(val, where)
+                    else:
+                        raise NetSpecError(f"{where}: unknown option '{key}' (use drop_prob, bias_pref, group_size)")
+                elif act is None:
+                    act = a or None
+                else:
+                    raise NetSpecError(f"{where}: too many fields")
+            out.append(FC(n, act, **extra))
+        elif kind in ("svm", "softmax", "regression"):
+            if len(args) != 1:
+                raise NetSpecError(f"{where}: {kind} needs exactly one size, e.g. {kind}:14")
+            n = _int(args[0], where)
+            out.append(SVM(n) if kind == "svm" else Softmax(n) if kind == "softmax" else Regression(n))
+        elif kind in ("relu", "tanh", "sigmoid"):
+            if args:
+                raise NetSpecError(f"{where}: {kind} takes no arguments")
+            out.append({"relu": Relu, "tanh": Tanh, "sigmoid": Sigmoid}[kind]())
+        elif kind == "maxout":
+            out.append(Maxout(_int(args[0], where) if args else 2))
+        elif kind == "dropout":
+            if len(args) != 1:
+                raise NetSpecError(f"{where}: dropout needs its drop_prob, e.g. dropout:0.25")
+            out.append(Dropout(_num(args[0], where)))
+        elif kind == "lrn":
+            if not args:
+                out.append(LRN(**LRN_DEFAULTS))  # type: ignore[arg-type]
+            elif len(args) == 4:
+                out.append(LRN(_num(args[0], where), _int(args[1], where), _num(args[2], where), _num(args[3], where)))
+            else:
+                raise NetSpecError(f"{where}: lrn takes no or four arguments (lrn:k:n:alpha:beta)")
+        else:
+            raise NetSpecError(
+                f"{where}: unknown layer type '{kind}' (use fc, svm, softmax, regression, relu, tanh, sigmoid, maxout, dropout, lrn)"
+            )
+    return tuple(out)
+
+
+def _fmt_num(x: float) -> str:
+    return repr(int(x)) if float(x) == int(x) else repr(float(x))
+
+
+def format_hidden(defs: Iterable[Layer]) -> str:
+    """Inverse of ``parse_hidden`` (the crowd's format for the common cases)."""
+    parts = []
+    for d in defs:
+        if isinstance(d, FC):
+            s = f"fc:{d.num_neurons}"
+            if d.activation:
+                s += f":{d.activation}"
+            for key in ("drop_prob", "bias_pref", "group_size"):
+                v = getattr(d, key)
+                if v is not None:
+                    s += f":{key}={_fmt_num(v)}"
+            parts.append(s)
+        elif isinstance(d, SVM):
+            parts.append(f"svm:{d.num_classes}")
+        elif isinstance(d, Softmax):
+            parts.append(f"softmax:{d.num_classes}")
+        elif isinstance(d, Regression):
+            parts.append(f"regression:{d.num_neurons}")
+        elif isinstance(d, (Relu, Tanh, Sigmoid)):
+            parts.append(layer_type(d))
+        elif isinstance(d, Maxout):
+            parts.append("maxout" if d.group_size == 2 else f"maxout:{d.group_size}")
+        elif isinstance(d, Dropout):
+            parts.append(f"dropout:{_fmt_num(d.drop_prob)}")
+        elif isinstance(d, LRN):
+            if dataclasses.asdict(d) == LRN_DEFAULTS:
+                parts.append("lrn")
+            else:
+                parts.append(f"lrn:{_fmt_num(d.k)}:{d.n}:{_fmt_num(d.alpha)}:{_fmt_num(d.beta)}")
+        else:
+            raise NetSpecError(f"format_hidden: {d!r} cannot appear between input and output")
+    return "|".join(parts)
+
+
+def deepqlearn_defs(net_inputs: int, hidden: str | Sequence[Layer], num_actions: int = NUM_ACTIONS) -> tuple[Layer, ...]:
+    """The full ``layer_defs`` of a DeepTraffic net: input(net_inputs), hidden, regression(num_actions)."""
+    hid = parse_hidden(hidden) if isinstance(hidden, str) else tuple(hidden)
+    return (Input(net_inputs), *hid, Regression(num_actions))
+
+
+# --------------------------------------------------------------------------------------------
+# torch bridge
+# --------------------------------------------------------------------------------------------
+
+
+def _torch():  # noqa: ANN202
+    import torch
+
+    return torch
+
+
+def build_torch(layers: Sequence[Layer], dtype: Any = None) -> Any:
+    """A ``ConvNetModule`` (``nn.Sequential`` subclass) for expanded ``layers``: Linear i ↔ FC i, in order.
+
+    Weights are torch's default init; use ``to_torch`` to carry a ``ConvNet``'s parameters.
+    ``module.fc_layers`` lists the Linear modules; the input layer is not a module.
+    """
+    torch = _torch()
+    nn = torch.nn
+    c = _classes()
+    ConvNetModule, ConvnetMaxout, ConvnetDropout = c["ConvNetModule"], c["ConvnetMaxout"], c["ConvnetDropout"]
+    ConvnetSVM, ConvnetSoftmax, ConvnetLRN = c["ConvnetSVM"], c["ConvnetSoftmax"], c["ConvnetLRN"]
+    layers = tuple(layers)
+    sizes = layer_sizes(layers)
+    mods: list[Any] = []
+    last = len(layers) - 1
+    for idx, (layer, (n_in, n_out)) in enumerate(zip(layers, sizes)):
+        if isinstance(layer, Input):
+            continue
+        if isinstance(layer, FC):
+            mods.append(nn.Linear(n_in, n_out, dtype=dtype))
+        elif isinstance(layer, Relu):
+            mods.append(nn.ReLU())
+        elif isinstance(layer, Tanh):
+            mods.append(nn.Tanh())
+        elif isinstance(layer, Sigmoid):
+            mods.append(nn.Sigmoid())
+        elif isinstance(layer, Maxout):
+            mods.append(ConvnetMaxout(layer.group_size))
+        elif isinstance(layer, Dropout):
+            mods.append(ConvnetDropout(layer.drop_prob))
+        elif isinstance(layer, SVM):
+            mods.append(ConvnetSVM(mid_network=idx != last))
+        elif isinstance(layer, Softmax):
+            mods.append(ConvnetSoftmax(mid_network=idx != last))
+        elif isinstance(layer, Regression):
+            mods.append(nn.Identity())
+        elif isinstance(layer, LRN):
+            mods.append(ConvnetLRN(layer.k, layer.n, layer.alpha, layer.beta))
+    return ConvNetModule(layers, *mods)
+
+
+def to_torch(net: ConvNet, dtype: Any = None) -> Any:
+    """``ConvNet`` → ``ConvNetModule`` carrying its weights (dtype default float64; float32 allowed)."""
+    torch = _torch()
+    dtype = torch.float64 if dtype is None else dtype
+    module = build_torch(net.layers, dtype=dtype)
+    with torch.no_grad():
+        for lin, (w, b) in zip(module.fc_layers, net.params):
+            lin.weight.copy_(torch.from_numpy(w).to(dtype))
+            lin.bias.copy_(torch.from_numpy(b).to(dtype))
+    return module
+
+
+def from_torch(module: Any, template: ConvNet | Sequence[Layer]) -> ConvNet:
+    """Torch module → ``ConvNet`` with ``template``'s layers and the module's Linear parameters (as float64).
+
+    ``module`` may be a ``ConvNetModule``, any ``nn.Module`` whose ``nn.Linear`` submodules (in
+    registration order) match the template's fc layers, or a state-dict-like mapping of such a module.
+    """
+    torch = _torch()
+    layers = template.layers if isinstance(template, ConvNet) else tuple(template)
+    sizes = layer_sizes(layers)
+    shapes = [(n_out, n_in) for layer, (n_in, n_out) in zip(layers, sizes) if isinstance(layer, FC)]
+    linears = [m for m in module.modules() if isinstance(m, torch.nn.Linear)]
+    if len(linears) != len(shapes):
+        raise NetSpecError(f"from_torch: module has {len(linears)} Linear layers, the template has {len(shapes)} fc layers")
+    params = []
+    for k, (lin, shape) in enumerate(zip(linears, shapes)):
+        w = lin.weight.detach().to("cpu", torch.float64).numpy().copy()
+        if tuple(w.shape) != shape:
+            raise NetSpecError(f"from_torch: Linear #{k} has weight shape {tuple(w.shape)}, template fc #{k} needs {shape}")
+        if lin.bias is None:
+            b = np.zeros(shape[0])
+        else:
+            b = lin.bias.detach().to("cpu", torch.float64).numpy().copy()
+        params.append((w, b))
+    return ConvNet(tuple(layers), tuple(params))
+
+
+def _make_torch_classes() -> dict[str, Any]:
+    torch = _torch()
+    nn = torch.nn
+
+    class ConvNetModule(nn.Sequential):
+        """``nn.Sequential`` of a convnetjs net; ``.layers`` keeps the expanded layer list."""
+
+        def __init__(self, layers: tuple[Layer, ...], *mods: Any) -> None:
+            super().__init__(*mods)
+            self.layers = layers
+
+        @property
+        def fc_layers(self) -> list[Any]:
+            return [m for m in self if isinstance(m, nn.Linear)]
+
+    class ConvnetMaxout(nn.Module):
+        """Max over groups of ``group_size`` consecutive features (extra features dropped, as ⌊n/g⌋)."""
+
+        def __init__(self, group_size: int) -> None:
+            super().__init__()
+            self.group_size = group_size
+
+        def forward(self, x: Any) -> Any:
+            g = self.group_size
+            n = x.shape[-1] // g
+            return x[..., : n * g].reshape(*x.shape[:-1], n, g).max(dim=-1).values
+
+    class ConvnetDropout(nn.Module):
+        """convnetjs dropout: train → zero with prob p (no rescale); eval → multiply by p."""
+
+        def __init__(self, p: float) -> None:
+            super().__init__()
+            self.p = p
+
+        def forward(self, x: Any) -> Any:
+            if self.training:
+                return x * (torch.rand_like(x) >= self.p).to(x.dtype)
+            return x * self.p
+
+    class ConvnetSVM(nn.Module):
+        """SVM layer: identity forward; mid-network it blocks the gradient (convnetjs zeroes it)."""
+
+        def __init__(self, mid_network: bool) -> None:
+            super().__init__()
+            self.mid_network = mid_network
+
+        def forward(self, x: Any) -> Any:
+            return x.detach() if self.mid_network else x
+
+    class _SoftmaxOwnGrad(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx: Any, x: Any) -> Any:  # noqa: ANN401
+            y = torch.softmax(x, dim=-1)
+            ctx.save_for_backward(y)
+            return y
+
+        @staticmethod
+        def backward(ctx: Any, grad: Any) -> Any:  # noqa: ANN401
+            (y,) = ctx.saved_tensors
+            return y.clone()
+
+    class ConvnetSoftmax(nn.Module):
+        """Softmax layer; mid-network its input gradient is its own output (convnetjs with no target)."""
+
+        def __init__(self, mid_network: bool) -> None:
+            super().__init__()
+            self.mid_network = mid_network
+
+        def forward(self, x: Any) -> Any:
+            if self.mid_network:
+                return _SoftmaxOwnGrad.apply(x)
+            return torch.softmax(x, dim=-1)
+
+    class ConvnetLRN(nn.Module):
+        """1-D local response normalisation with convnetjs's k, n, alpha, beta."""
+
+        def __init__(self, k: float, n: int, alpha: float, beta: float) -> None:
+            super().__init__()
+            self.k, self.n, self.alpha, self.beta = k, n, alpha, beta
+
+        def forward(self, x: Any) -> Any:
+            half = self.n // 2
+            sq = x * x
+            padded = torch.nn.functional.pad(sq, (half, half))
+            window = padded.unfold(-1, 2 * half + 1, 1).sum(-1)
+            return x / (window * (self.alpha / self.n) + self.k) ** self.beta
+
+    return {
+        "ConvNetModule": ConvNetModule,
+        "ConvnetMaxout": ConvnetMaxout,
+        "ConvnetDropout": ConvnetDropout,
+        "ConvnetSVM": ConvnetSVM,
+        "ConvnetSoftmax": ConvnetSoftmax,
+        "ConvnetLRN": ConvnetLRN,
+    }
+
+
+_CLASSES: dict[str, Any] = {}
+
+
+def _classes() -> dict[str, Any]:
+    if not _CLASSES:
+        _CLASSES.update(_make_torch_classes())
+    return _CLASSES
+
+
+def __getattr__(name: str) -> Any:
+    """Torch module classes are created on first use so that importing this module does not import torch."""
+    if name in ("ConvNetModule", "ConvnetMaxout", "ConvnetDropout", "ConvnetSVM", "ConvnetSoftmax", "ConvnetLRN"):
+        return _classes()[name]
+    raise AttributeError(name)

@@ -70,6 +70,7 @@ import torch
 from autotune import netspec
 from autotune.config import NUM_ACTIONS, TrainConfig
 from sim import engine
+from sim.layout import I_RUNS_DONE
 from sim.protocols import EvalResult, evaluate
 from sim.simulator import Simulator
 
@@ -383,6 +384,15 @@ class _Kernel:
             cur = op.out
         self.ops = ops
         self.ops_rev = ops[::-1]
+        # fc layers below a mid-network svm never receive a gradient: their dw stays 0 (decay still acts)
+        blocked: list[torch.Tensor] = []
+        below = False
+        for op in self.ops_rev:
+            if below and isinstance(op, _FCOp):
+                blocked += [op.gW, op.gb]
+            if isinstance(op, _SVMOp):
+                below = True
+        self.blocked = blocked
         q = cur  # (2B, 5)
         self.q0 = q[:B]
         self.q1 = q[B:]
@@ -431,6 +441,8 @@ class _Kernel:
             d = op.bwd(d)
             if d is None:
                 break
+        if self.blocked:
+            torch._foreach_zero_(self.blocked)
         self._update()
 
     def loss(self) -> float:
@@ -1114,7 +1126,7 @@ def _train(
                         k_mark, brain, sim, config, curve, quick_eval, quick_eval_runs, quick_eval_frames,
                         quick_eval_seed, eval_rng, reporter, t0,
                     )  # fmt: skip
-                    eval_seconds += time.perf_counter() - te - (curve[-1].wall_seconds if False else 0.0)
+                    eval_seconds += time.perf_counter() - te
                     k_mark += 1
                     next_mark = marks[k_mark] if k_mark < len(marks) else total_decisions + 1
                     if stop is not None:
@@ -1192,7 +1204,7 @@ def _result(
     wall = time.perf_counter() - t0
     brain.module.eval()
     if sim is not None:
-        done = int(sim.ints[0, 6])  # runs completed (layout.I_RUNS_DONE)
+        done = int(sim.ints[0, I_RUNS_DONE])
         scores = [float(s) for s in sim.scores[0, :done]]
         frames = sim.frames_simulated
     else:
@@ -1261,10 +1273,11 @@ class _TrainingAgents:
         if self.frozen is None:
             import copy
 
-            self.frozen = _numpy_forward_ops(copy.deepcopy(brain.module), brain.layers, np.float64)
-            self._hist = np.tile(brain._hist.astype(np.float64), (self.config.other_agents + 1, 1))
+            dtype = brain._hist.dtype
+            self.frozen = _numpy_forward_ops(copy.deepcopy(brain.module), brain.layers, dtype)
+            self._hist = np.tile(brain._hist, (self.config.other_agents + 1, 1))
         hist = self._hist[car]  # type: ignore[index]
-        x = np.concatenate([np.asarray(inputs, dtype=np.float64), hist]) if self.tw else np.array(inputs, dtype=np.float64)
+        x = np.concatenate([np.asarray(inputs, dtype=hist.dtype), hist])
         h = x
         for op in self.frozen:
             h = op(h)

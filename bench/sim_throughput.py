@@ -77,8 +77,13 @@ def main() -> None:
                 rows.append({"ruleset": ruleset, "agents": agents, "batch": worlds, "threads": threads, "fps": fps})
         numba.set_num_threads(1)
         rows.append(
-            {"ruleset": ruleset, "agents": agents, "batch": "single-step", "threads": 1,
-             "fps": single_fps(ruleset, agents, int(2_000_000 * scale))}
+            {
+                "ruleset": ruleset,
+                "agents": agents,
+                "batch": "single-step",
+                "threads": 1,
+                "fps": single_fps(ruleset, agents, int(2_000_000 * scale)),
+            }
         )
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     official = {f"v2_official_heuristic_a_agents{a}_s": official_seconds(a) for a in (0, 10)}

@@ -117,9 +117,7 @@ def frame_pre_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.nd
 
 
 @njit(cache=True, error_model="numpy")
-def frame_post_v1(
-    cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, w: int, action: int
-) -> None:
+def frame_post_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, w: int, action: int) -> None:
     """Steps 8 (end) – 10: take the decision, apply ``m``, advance the frame, add to ``G``."""
     if ints[w, I_DECIDER] == 0:
         ints[w, I_ACTION] = action if 0 <= action < 5 else 0

@@ -137,9 +137,7 @@ def initialize_map(cars: np.ndarray, ints: np.ndarray, w: int, n_agents: int) ->
 
 
 @njit(cache=True, error_model="numpy")
-def reset_v2(
-    cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int
-) -> None:
+def reset_v2(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int) -> None:
     """``reset()`` (§3.3): construct with the OLD ``v``, bump the run counter, re-seed, place."""
     for i in range(N_CARS):
         _construct(cars, ints, mr, w, i)
@@ -189,9 +187,7 @@ def _ego_redraw_and_reward(cars: np.ndarray, g: np.ndarray, fs: np.ndarray, w: i
 
 
 @njit(cache=True, error_model="numpy")
-def frame_pre_v2(
-    cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int
-) -> int:
+def frame_pre_v2(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, cfg: np.ndarray, w: int) -> int:
     """Steps 2–5 (and 7–9 unless an agent decides); returns the deciding car or −1."""
     n = cfg[K_AGENTS]
     g = grid[w]

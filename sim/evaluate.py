@@ -44,8 +44,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="python -m sim.evaluate", description="Evaluate a DeepTraffic policy with a reference protocol.")
     p.add_argument("--ruleset", default="v2", help="v1 or v2 (default v2)")
     p.add_argument("--protocol", required=True, help=", ".join(PROTOCOLS))
-    p.add_argument("--seed", type=int, default=None, help="protocol seed (defaults: v2-official 1, v1-original 2000, v1-distribution 1000, custom 0)")
-    p.add_argument("--runs", type=int, default=None, help="number of runs (custom; overriding an official size is allowed but flagged)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="protocol seed (defaults: v2-official 1, v1-original 2000, v1-distribution 1000, custom 0)",
+    )
+    p.add_argument(
+        "--runs",
+        type=int,
+        default=None,
+        help="number of runs (custom; overriding an official size is allowed but flagged)",
+    )
     p.add_argument("--frames", type=int, default=None, help="frames per run")
     p.add_argument("--policy", required=True, help=f"built-in ({', '.join(BUILTINS)}) or FILE.py:FUNCTION")
     p.add_argument("--lanes-side", type=int, required=True)
@@ -90,7 +100,8 @@ def _summary(result: EvalResult) -> str:
         f"{result.runs} runs × {result.frames} frames · other_agents {result.other_agents}",
         f"  site median (original's lexicographic median): {result.median_site:.2f} mph",
         f"  median {result.median:.3f} · mean {result.mean:.3f} · std {result.std:.3f} · "
-        f"95% CI of the mean [{result.ci95[0]:.3f}, {result.ci95[1]:.3f}] · min {min(result.scores):.2f} · max {max(result.scores):.2f}",
+        f"95% CI of the mean [{result.ci95[0]:.3f}, {result.ci95[1]:.3f}] · "
+        f"min {min(result.scores):.2f} · max {max(result.scores):.2f}",
         f"  {result.wall_seconds:.2f} s wall, {result.frames_per_second:,.0f} frames/s",
     ]
     if not result.official_size:
@@ -136,8 +147,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         result = evaluate(
-            config, policy, args.protocol, seed=args.seed, runs=args.runs, frames=args.frames,
-            threads=args.threads, policy_name=name, progress=progress,
+            config,
+            policy,
+            args.protocol,
+            seed=args.seed,
+            runs=args.runs,
+            frames=args.frames,
+            threads=args.threads,
+            policy_name=name,
+            progress=progress,
         )
     except ConfigError as exc:
         field, _, rest = str(exc).partition(": ")

@@ -29,7 +29,9 @@ from sim.rng import mrand, pm_seed_state
 
 
 @njit(cache=True, error_model="numpy")
-def seed_v1(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, state: int) -> None:
+def seed_v1(
+    cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, state: int
+) -> None:
     mr[w] = state & 0xFFFFFFFF
     reset(cars, fs, ints, mr, cfg, w)
 
@@ -56,7 +58,14 @@ def seed_v2_independent(
 
 @njit(cache=True, error_model="numpy")
 def seed_v2_training(
-    cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, state: int, brain_draws: int
+    cars: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    w: int,
+    state: int,
+    brain_draws: int,
 ) -> None:
     mr[w] = state & 0xFFFFFFFF
     load_v2(cars, ints, mr, w)

@@ -240,8 +240,19 @@ class Simulator:
 
     def _run_one(self) -> None:
         engine.advance_one(
-            self.cars, self.grid, self.fs, self.ints, self.mrand, self.cfg, self._actions, self._obs,
-            self._obs_car, self._obs_reward, self.scores, self.ego_scores, self.run_seeds,
+            self.cars,
+            self.grid,
+            self.fs,
+            self.ints,
+            self.mrand,
+            self.cfg,
+            self._actions,
+            self._obs,
+            self._obs_car,
+            self._obs_reward,
+            self.scores,
+            self.ego_scores,
+            self.run_seeds,
         )
 
     @property
@@ -281,8 +292,20 @@ class Simulator:
             raise RuntimeError("seed the simulator before run_compiled()")
         obs = np.zeros(self.config.num_inputs)
         engine.run_compiled(
-            self.cars, self.grid, self.fs, self.ints, self.mrand, self.cfg, 0, policy, pstate,
-            obs, self.scores, self.ego_scores, self.run_seeds, self.runs_per_world if max_runs is None else max_runs,
+            self.cars,
+            self.grid,
+            self.fs,
+            self.ints,
+            self.mrand,
+            self.cfg,
+            0,
+            policy,
+            pstate,
+            obs,
+            self.scores,
+            self.ego_scores,
+            self.run_seeds,
+            self.runs_per_world if max_runs is None else max_runs,
         )
         return int(self.ints[0, I_RUNS_DONE])
 
@@ -300,5 +323,7 @@ def check_actions(actions: object, n: int) -> np.ndarray:
     out = arr.astype(np.int64)
     if n and (out.min() < 0 or out.max() > 4):
         bad = out[(out < 0) | (out > 4)][0]
-        raise PolicyError(f"policy returned action {bad}; allowed actions are 0–4 (noop, accelerate, decelerate, left, right)")
+        raise PolicyError(
+            f"policy returned action {bad}; allowed actions are 0–4 (noop, accelerate, decelerate, left, right)"
+        )
     return out

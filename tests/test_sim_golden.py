@@ -55,7 +55,9 @@ def _step_frame(sim: Simulator, w: int, policy, trace_decisions: list, cursor: l
         cursor[w] += 1
         frame = int(sim.ints[w, 0])
         assert (dec["frame"], dec.get("car", 0)) == (frame, car), f"world {w}: decision at frame {frame} car {car}"
-        np.testing.assert_array_equal(obs, np.array(dec["state"], dtype=float), err_msg=f"world {w} frame {frame} input")
+        np.testing.assert_array_equal(
+            obs, np.array(dec["state"], dtype=float), err_msg=f"world {w} frame {frame} input"
+        )
         if car == 0:
             assert sim.fs[w, F_LAST_REWARD] == dec["reward"], f"world {w} frame {frame} reward"
         action = int(policy.compiled(obs, int(sim.cars[w, 2, car]), car, 0.0, sim.mrand, w, policy.pstate))
@@ -130,7 +132,9 @@ def test_v2_golden_traces_batched(reference, agents):
         for w in range(2):
             _step_frame(sim, w, policy, traces[w]["decisions"], cursor)
             cars[w].append(sim.cars[w].T.copy())
-            scalars[w].append([sim.fs[w, F_CAMERA], sim.fs[w, F_REWARD_ACC], sim.fs[w, F_SCORE_SUM], sim.ints[w, I_PM_V]])
+            scalars[w].append(
+                [sim.fs[w, F_CAMERA], sim.fs[w, F_REWARD_ACC], sim.fs[w, F_SCORE_SUM], sim.ints[w, I_PM_V]]
+            )
     for w, tr in enumerate(traces):
         _first_mismatch(cars[w], [fr["cars"] for fr in tr["frames"]], f"world {w} cars")
         v_state = tr["initial"]["v_state"]

@@ -48,6 +48,8 @@ from sim.layout import (
     K_BEHIND,
     K_LANES_SIDE,
     N_CARS,
+    N_LANES,
+    N_ROWS,
 )
 from sim.rng import mrand
 from sim.rules import apply_action, move, safety_factor, spawn_lane, try_lane_change
@@ -86,7 +88,7 @@ def reset_v1(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray,
 def frame_pre_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int) -> int:
     """Steps 1–7 of a frame; returns 0 when the ego must decide now, else −1."""
     g = grid[w]
-    g[:, :] = FREE
+    g.reshape(N_LANES * N_ROWS)[:] = FREE
     camera = fs[w, F_CAMERA]
     for i in range(N_CARS):
         move(cars, w, i, camera)

@@ -191,7 +191,7 @@ def frame_pre_v2(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.nd
     """Steps 2–5 (and 7–9 unless an agent decides); returns the deciding car or −1."""
     n = cfg[K_AGENTS]
     g = grid[w]
-    g[:, :] = FREE
+    g.reshape(N_LANES * N_ROWS)[:] = FREE
     camera = fs[w, F_CAMERA]
     for i in range(N_CARS):
         move(cars, w, i, camera)

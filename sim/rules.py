@@ -20,13 +20,13 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.grid import cell, floor_div, grid_get, js_min
-from sim.layout import CA, CB, CC, CX, CY
+from sim.grid import cell, floor_div, grid_get, js_min, row_base
+from sim.layout import CA, CB, CC, CX, CY, N_LANES, N_ROWS
 
 LATERAL_STEP = 20.0 / 30.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def move(cars: np.ndarray, w: int, i: int, camera: float) -> None:
     """Longitudinal move relative to the camera and one lateral step (no respawn)."""
     y = cars[w, CY, i]
@@ -42,23 +42,35 @@ def move(cars: np.ndarray, w: int, i: int, camera: float) -> None:
         cars[w, CX, i] = x - LATERAL_STEP
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def safety_factor(g: np.ndarray, cars: np.ndarray, w: int, i: int, free: float) -> float:
     """The car's new safety factor c from the four rows ahead of its front row."""
     x = cars[w, CX, i]
     y = cars[w, CY, i]
     a = cars[w, CA, i]
     col = floor_div(x + 7.5, 20.0, 0.05)
+    base = row_base(y)
     v = 2.0
+    if base >= 4.0 and base <= N_ROWS and col >= 0.0 and col < N_LANES:
+        # common case: the four rows ahead are on the grid, read them without bounds checks
+        lane = g[int(col)]
+        top = int(base)
+        for k in range(1, 5):
+            d = lane[top - k]
+            if d < free:
+                v = js_min(v, 0.5 * (k - 1))
+                v = js_min(v, d / a)
+        return v
     for k in range(1, 5):
-        d = cell(g, col, floor_div(y - 10.0 * k, 10.0, 0.1), free)
+        row = base - k if base == base else floor_div(y - 10.0 * k, 10.0, 0.1)
+        d = cell(g, col, row, free)
         if d < free:
             v = js_min(v, 0.5 * (k - 1))
             v = js_min(v, d / a)
     return v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def try_lane_change(g: np.ndarray, cars: np.ndarray, w: int, i: int, direction: float, free: float) -> bool:
     """Attempt a lane change by ``direction`` (−1 left, +1 right); on success the target lane moves."""
     x = cars[w, CX, i]
@@ -77,7 +89,7 @@ def try_lane_change(g: np.ndarray, cars: np.ndarray, w: int, i: int, direction: 
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def apply_action(g: np.ndarray, cars: np.ndarray, w: int, i: int, action: int, free: float) -> bool:
     """Apply one action to car i; returns True when it was a lane change (tried once)."""
     if action == 1:
@@ -95,7 +107,7 @@ def apply_action(g: np.ndarray, cars: np.ndarray, w: int, i: int, action: int, f
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def spawn_lane(cars: np.ndarray, w: int, i: int, q: float) -> None:
     """Lane part of the spawn routine: ``ℓ = ⌊(140·q)/20⌋``, ``x = 20ℓ + 4``, ``b = ℓ``."""
     lane = math.floor((140.0 * q) / 20.0)

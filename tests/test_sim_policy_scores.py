@@ -9,8 +9,9 @@ from sim.policies import BUILTINS
 from sim.protocols import evaluate
 from tests.conftest import REFERENCE, load_json
 
-V1 = load_json(REFERENCE / "policy_scores.json") if REFERENCE.is_dir() else {"policies": {}}
-V2 = load_json(REFERENCE / "policy_scores_v2.json") if REFERENCE.is_dir() else {"policies": {}}
+# Loaded at collection: missing reference data is an error, never a silently empty parametrisation.
+V1 = load_json(REFERENCE / "policy_scores.json")
+V2 = load_json(REFERENCE / "policy_scores_v2.json")
 
 
 def _config(entry: dict, ruleset: str, agents: int = 0) -> EngineConfig:

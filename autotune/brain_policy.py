@@ -28,22 +28,40 @@ counters) is done lazily at that decision. ``reset_seed(0)`` only feeds the v2 w
 
 All mutable state lives in numba arrays (``pstate``) with a leading world axis: the sequential
 protocols use world 0; batched Python use (``__call__``) keeps one set of brains per world.
+
+convnetjs's Gaussian cache is a module global, so a process that evaluates several nets in a row
+carries the flag from one evaluation into the next brain build (``gauss_cache`` /
+``final_gauss_cache``); evaluate.js and the site's web worker start fresh (flag 0, the default).
+
+Usage::
+
+    net, settings = autotune.netjson.load("nets/x.json")            # + x.config.json
+    result = evaluate_net(net, settings, "v2-official")             # sim.protocols.EvalResult
+    result = evaluate_net(net, settings, "v1-original", seed=2001)  # evaluate.js, one repetition
+
+    policy = BrainPolicy(net, settings, "v2")                       # for sim.protocols.evaluate
+    stream = policy.prepare("v2-official", seed=1)
+    sim.protocols.evaluate(config, policy, "v2-official", stream_state=stream)
 """
 
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
 from numba import njit
 
 from autotune.forward import FlatNet, argmax_js, flatten, forward_flat
-from autotune.netjson import NetFormatError, NetSettings, validate
-from autotune.netspec import FC, NUM_ACTIONS, ConvNet
+from autotune.netjson import NetSettings, validate
+from autotune.netspec import NUM_ACTIONS, ConvNet
+from sim import engine
 from sim.config import ConfigError, EngineConfig
-from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, evaluate
-from sim.rng import mrand, mulberry32_advance, mulberry32_next
+from sim.layout import CB, F_LAST_REWARD, I_DONE, I_FRAME, I_RUNS_DONE, K_FRAMES
+from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, _resolve, evaluate
+from sim.rng import mrand, mulberry32_advance
+from sim.simulator import Simulator
 
 MAX_BRAINS = 11  # the ego + up to 10 agents
 V1_LOAD_DRAWS = 60  # loading the v1 engine constructs 20 cars, 3 draws each
@@ -65,7 +83,7 @@ RULESET_V1 = 1
 RULESET_V2 = 2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def gauss_skip(mr: np.ndarray, w: int, cache: int, n: int) -> int:
     """Consume the ``Math.random`` draws of ``n`` ``gaussRandom()`` calls; returns the new cache flag.
 
@@ -85,7 +103,7 @@ def gauss_skip(mr: np.ndarray, w: int, cache: int, n: int) -> int:
     return 1 if m % 2 == 1 else 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def replay_build(state: int, cache: int, n_gauss: int) -> tuple[int, int, int]:
     """Replay ``n_gauss`` Gaussian draws from mulberry32 ``state``: (new state, cache flag, uniform draws)."""
     mr = np.zeros(1, dtype=np.int64)
@@ -107,7 +125,7 @@ def replay_build(state: int, cache: int, n_gauss: int) -> tuple[int, int, int]:
     return mr[0], c, draws
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _decide(inputs, mr, w, b, codes, params, gcfg, gflt, wstate, bstate, states, actions, netin, buf):  # noqa: ANN001, ANN202
     tw = gcfg[G_TW]
     ns = gcfg[G_NUM_STATES]
@@ -147,7 +165,7 @@ def _decide(inputs, mr, w, b, codes, params, gcfg, gflt, wstate, bstate, states,
     return action
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def brain_policy(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN201
     """Compiled policy ``(inputs, lane, car, reward, mr, w, pstate) -> action`` (sim.policies protocol)."""
     codes, params, gcfg, gflt, wstate, bstate, states, actions, netin, buf = pstate
@@ -172,10 +190,33 @@ def brain_policy(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN
     return _decide(inputs, mr, w, b, codes, params, gcfg, gflt, wstate, bstate, states, actions, netin, buf)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _decide_rows(inputs, cars, worlds, mr, pstate, out):  # noqa: ANN001, ANN202
     for r in range(inputs.shape[0]):
         out[r] = brain_policy(inputs[r], 0, cars[r], math.nan, mr, worlds[r], pstate)
+
+
+@njit(cache=True, error_model="numpy")
+def run_brain(cars, grid, fs, ints, mr, cfg, w, pstate, obs, scores, ego, run_seeds, max_runs):  # noqa: ANN001, ANN201
+    """``sim.engine.run_compiled`` with ``brain_policy`` bound statically, so that numba can cache it.
+
+    (A function passed as an argument cannot be cached; compiling the generic driver costs ~10 s
+    per process.) Same loop: world ``w`` (already reset), at most ``max_runs`` more runs.
+    """
+    frames = cfg[K_FRAMES]
+    done = 0
+    while ints[w, I_DONE] == 0 and done < max_runs:
+        done += 1
+        for _ in range(frames - ints[w, I_FRAME]):
+            car = engine.frame_pre(cars, grid, fs, ints, mr, cfg, w)
+            action = -1
+            if car >= 0:
+                engine.observe(cars, grid, cfg, w, car, obs)
+                reward = fs[w, F_LAST_REWARD] if car == 0 else math.nan
+                action = brain_policy(obs, int(cars[w, CB, car]), car, reward, mr, w, pstate)
+            engine.frame_post(cars, grid, fs, ints, cfg, w, action)
+        if not engine._finish_run(fs, ints, cfg, w, scores, ego):
+            engine._next_run(cars, fs, ints, mr, cfg, w, run_seeds)
 
 
 def build_gaussians(net: ConvNet) -> int:
@@ -262,8 +303,14 @@ class BrainPolicy:
             self.buf,
         )
 
-    def prepare(self, protocol: str, seed: int | None = None, runs: int | None = None) -> int | None:
+    def prepare(
+        self, protocol: str, seed: int | None = None, runs: int | None = None, gauss_cache: int = 0
+    ) -> int | None:
         """Reset the brains as the protocol's harness builds them; returns ``stream_state`` for ``evaluate``.
+
+        ``gauss_cache`` is convnetjs's global Gaussian cache flag before the brain is built: 0 in a
+        fresh process (evaluate.js, a fresh web worker); a harness that evaluates several nets in
+        one process inherits the previous evaluation's final flag (``final_gauss_cache``).
 
         * v2-official: ``mulberry32(seed)``, brain built → the state before the engine load;
         * v1-original: ``mulberry32(seed)``, brain built, v1 engine loaded (60 draws) → the state
@@ -278,24 +325,30 @@ class BrainPolicy:
         seed = proto.seed if seed is None else int(seed)
         if protocol == "custom":
             n = proto.runs if runs is None else runs
-            caches = np.array([build_draws(self.net, seed + i)[1] for i in range(n)], dtype=np.int64)
+            caches = np.array([build_draws(self.net, seed + i, gauss_cache)[1] for i in range(n)], dtype=np.int64)
             self.reset(n, caches)
             self.stream_state = None
             return None
-        state, cache, _draws = build_draws(self.net, seed)
+        built, cache, _draws = build_draws(self.net, seed, gauss_cache)
         self.reset(1, np.array([cache], dtype=np.int64))
+        state: int | None = built
         if protocol == "v1-original":
-            state = mulberry32_advance(state, V1_LOAD_DRAWS)
+            state = mulberry32_advance(built, V1_LOAD_DRAWS)
         elif protocol == "v1-distribution":
             state = None
         self.stream_state = state
         return state
 
+    @property
+    def final_gauss_cache(self) -> int:
+        """World 0's Gaussian cache flag now (after an evaluation: what the next build in that process sees)."""
+        return int(self.wstate[0, W_CACHE])
+
     def _grow(self, n_worlds: int) -> None:
         old = (self.wstate, self.bstate, self.states, self.actions)
         n_old = self.n_worlds
         self.reset(n_worlds)
-        for new, prev in zip((self.wstate, self.bstate, self.states, self.actions), old):
+        for new, prev in zip((self.wstate, self.bstate, self.states, self.actions), old, strict=True):
             new[:n_old] = prev
 
     def __call__(self, obs: Any) -> np.ndarray:
@@ -313,9 +366,7 @@ class BrainPolicy:
         return out
 
 
-def engine_config(
-    settings: NetSettings, ruleset: str | None = None, other_agents: int | None = None
-) -> EngineConfig:
+def engine_config(settings: NetSettings, ruleset: str | None = None, other_agents: int | None = None) -> EngineConfig:
     """The simulator configuration a net is evaluated in (v1: no agents; v2: the net's otherAgents, else 0)."""
     ruleset = ruleset or settings.engine
     if ruleset == "v1":
@@ -358,30 +409,89 @@ def evaluate_net(
     epsilon: float | None = None,
     progress: ProgressFn | None = None,
     name: str | None = None,
+    gauss_cache: int = 0,
 ) -> EvalResult:
     """Evaluate a trained net exactly as the original harness would (per-run scores in run order).
 
     ``protocol``: v2-official, v1-original, v1-distribution or custom (``sim.protocols``);
     ``ruleset`` defaults to the protocol's (custom: the net's engine); ``other_agents`` (v2)
-    defaults to the net's ``otherAgents`` (0 when unset).
+    defaults to the net's ``otherAgents`` (0 when unset); ``gauss_cache``: convnetjs's Gaussian
+    cache flag before the brain build (0 = fresh process, see ``BrainPolicy.prepare``).
     """
     ruleset = resolve_ruleset(settings, protocol, ruleset)
     config = engine_config(settings, ruleset, other_agents)
     policy = BrainPolicy(net, settings, ruleset, epsilon=epsilon, name=name)
     proto = PROTOCOLS.get(protocol)
     n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
-    stream_state = policy.prepare(protocol, seed, n_runs)
-    return evaluate(
-        config,
-        policy,
-        protocol,
+    stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache)
+    if protocol not in ("v2-official", "v1-original", "v1-distribution"):
+        return evaluate(
+            config,
+            policy,
+            protocol,
+            seed=seed,
+            runs=runs,
+            frames=frames,
+            threads=threads,
+            stream_state=stream_state,
+            policy_name=policy.name,
+            progress=progress,
+        )
+    return _evaluate_sequential(config, policy, protocol, seed, runs, frames, stream_state, progress)
+
+
+def _evaluate_sequential(
+    config: EngineConfig,
+    policy: BrainPolicy,
+    protocol: str,
+    seed: int | None,
+    runs: int | None,
+    frames: int | None,
+    stream_state: int | None,
+    progress: ProgressFn | None,
+) -> EvalResult:
+    """``sim.protocols.evaluate``'s sequential path (one world), driven by the cached ``run_brain``."""
+    proto, runs, frames = _resolve(config, protocol, runs, frames)
+    seed = proto.seed if seed is None else seed
+    start = time.perf_counter()
+    sim = Simulator(config, 1, frames, runs)
+    if protocol == "v1-distribution":
+        sim.seed_per_run([seed + i for i in range(runs)])
+    else:
+        sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
+    obs = np.zeros(config.num_inputs)
+    chunk = max(1, 200_000 // frames)
+    while sim.ints[0, I_DONE] == 0:
+        run_brain(
+            sim.cars,
+            sim.grid,
+            sim.fs,
+            sim.ints,
+            sim.mrand,
+            sim.cfg,
+            0,
+            policy.pstate,
+            obs,
+            sim.scores,
+            sim.ego_scores,
+            sim.run_seeds,
+            chunk,
+        )
+        if progress:
+            progress(int(sim.ints[0, I_RUNS_DONE]) * frames, runs * frames)
+    wall = time.perf_counter() - start
+    return EvalResult(
+        protocol=protocol,
+        ruleset=config.ruleset,
+        policy=policy.name,
         seed=seed,
         runs=runs,
         frames=frames,
-        threads=threads,
-        stream_state=stream_state,
-        policy_name=policy.name,
-        progress=progress,
+        other_agents=config.other_agents,
+        scores=sim.scores.reshape(-1).tolist(),
+        ego_scores=sim.ego_scores.reshape(-1).tolist(),
+        wall_seconds=wall,
+        official_size=(runs == proto.runs and frames == proto.frames),
     )
 
 
@@ -392,7 +502,5 @@ __all__ = [
     "build_gaussians",
     "engine_config",
     "evaluate_net",
-    "FC",
-    "NetFormatError",
-    "mulberry32_next",
+    "resolve_ruleset",
 ]

@@ -129,13 +129,15 @@ def parse_layers(value: Any) -> tuple[netspec.Layer, ...]:
         out: list[netspec.Layer] = []
         for i, item in enumerate(value):
             if isinstance(item, tuple(netspec.LAYER_TYPES.values())):
-                out.append(item)
+                out.append(item)  # type: ignore[arg-type]
             elif isinstance(item, Mapping):
                 out.append(_layer_from_dict(item, i))
             elif isinstance(item, str):
                 out.extend(netspec.parse_hidden(item))
             else:
-                raise ConfigError(f"layers[{i}]: {item!r} is not a layer (use a dict with 'type' or a string 'fc:10:relu')")
+                raise ConfigError(
+                    f"layers[{i}]: {item!r} is not a layer (use a dict with 'type' or a string 'fc:10:relu')"
+                )
         _check_activations(out)
         return tuple(out)
     except netspec.NetSpecError as exc:
@@ -302,12 +304,12 @@ class TrainConfig:
             ("l1_decay", 0.0, 10.0),
             ("ro", 0.0, 1.0),
         )
-        for name, lo, hi in floats:
+        for name, flo, fhi in floats:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"{name}: must be a number in [{lo:g}, {hi:g}], got {value!r}")
-            if not lo <= value <= hi:
-                raise ConfigError(f"{name}: {value!r} is out of range; allowed [{lo:g}, {hi:g}]")
+                raise ConfigError(f"{name}: must be a number in [{flo:g}, {fhi:g}], got {value!r}")
+            if not flo <= value <= fhi:
+                raise ConfigError(f"{name}: {value!r} is out of range; allowed [{flo:g}, {fhi:g}]")
             object.__setattr__(self, name, float(value))
         if isinstance(self.eps, bool) or not isinstance(self.eps, (int, float)) or not (0.0 < self.eps <= 1.0):
             raise ConfigError(f"eps: {self.eps!r} is out of range; allowed (0, 1]")
@@ -384,7 +386,8 @@ class TrainConfig:
 
     def replace(self, **changes: Any) -> TrainConfig:
         """A copy with some fields changed (camelCase names accepted), validated again."""
-        return TrainConfig.from_mapping({**self.to_mapping(), **changes})
+        snake = {CAMEL_ALIASES.get(k, k): v for k, v in changes.items()}
+        return TrainConfig.from_mapping({**self.to_mapping(), **snake})
 
     # -- (de)serialisation ------------------------------------------------------------------
     def to_mapping(self) -> dict[str, Any]:
@@ -522,7 +525,9 @@ def _hidden_from_layer_defs(defs: Any) -> tuple[netspec.Layer, ...]:
     layers = list(parse_layers(_strip_input(defs)))
     if layers and isinstance(layers[-1], netspec.Regression):
         if layers[-1].num_neurons != NUM_ACTIONS:
-            raise ConfigError(f"layer_defs: the final regression has {layers[-1].num_neurons} outputs; DeepTraffic needs 5")
+            raise ConfigError(
+                f"layer_defs: the final regression has {layers[-1].num_neurons} outputs; DeepTraffic needs 5"
+            )
         layers.pop()
     else:
         raise ConfigError("layer_defs: must end with {type: 'regression', num_neurons: 5}")

@@ -3,7 +3,7 @@
 The network is flattened into two arrays so that one compiled function evaluates every net:
 
 * ``codes`` int64 (n_layers, 5): ``[layer code, n_in, n_out, offset into params, aux]``;
-* ``params`` float64: per fc its weights (row-major (out, in)) then its biases; a dropout's
+* ``params`` float64: per fc its weights stored transposed (row-major (in, out)) then its biases; a dropout's
   ``drop_prob``; an lrn's ``k, alpha, beta`` (aux = n); a maxout's group size is its aux.
 
 Arithmetic follows engine_spec.md §10.5/§10.9 operation by operation (no BLAS, no re-association,
@@ -73,7 +73,7 @@ def flatten(net: ConvNet) -> FlatNet:
     chunks: list[np.ndarray] = []
     offset = 0
     fc = 0
-    for i, (layer, (n_in, n_out)) in enumerate(zip(net.layers, sizes)):
+    for i, (layer, (n_in, n_out)) in enumerate(zip(net.layers, sizes, strict=True)):
         codes[i, C_CODE] = _CODES[type(layer)]
         codes[i, C_IN] = n_in
         codes[i, C_OUT] = n_out
@@ -82,7 +82,7 @@ def flatten(net: ConvNet) -> FlatNet:
         if isinstance(layer, FC):
             w, b = net.params[fc]
             fc += 1
-            extra = np.concatenate([w.reshape(-1), b])
+            extra = np.concatenate([w.T.reshape(-1), b])  # stored transposed: (in, out)
         elif isinstance(layer, Dropout):
             extra = np.array([float(layer.drop_prob)])
         elif isinstance(layer, LRN):
@@ -98,7 +98,7 @@ def flatten(net: ConvNet) -> FlatNet:
     return FlatNet(codes, params, net.input_size, sizes[-1][1], width)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def forward_flat(codes: np.ndarray, params: np.ndarray, x: np.ndarray, buf: np.ndarray) -> int:
     """Forward ``x`` through the flat net; the output is ``buf[k, :n_out]`` for the returned k.
 
@@ -118,14 +118,21 @@ def forward_flat(codes: np.ndarray, params: np.ndarray, x: np.ndarray, buf: np.n
             continue
         dst = 1 - src
         if code == L_FC:
-            bias = off + n_out * n_in
+            # o_i = ((0 + x_0 w_i0) + x_1 w_i1) + … + b_i: every neuron's sum runs in index order d = 0…
+            # as in convnetjs; looping d outside and i inside only interleaves independent sums
+            # (bit-identical, and it vectorises across neurons).
+            out = buf[dst, :n_out]
+            x = buf[src, :n_in]
+            wt = params[off : off + n_in * n_out].reshape((n_in, n_out))
+            b = params[off + n_in * n_out : off + n_in * n_out + n_out]
             for i in range(n_out):
-                a = 0.0
-                row = off + i * n_in
-                for d in range(n_in):
-                    a += buf[src, d] * params[row + d]
-                a += params[bias + i]
-                buf[dst, i] = a
+                out[i] = 0.0
+            for d in range(n_in):
+                xd = x[d]
+                for i in range(n_out):
+                    out[i] += xd * wt[d, i]
+            for i in range(n_out):
+                out[i] += b[i]
         elif code == L_RELU:
             for i in range(n_out):
                 v = buf[src, i]
@@ -184,7 +191,7 @@ def forward_flat(codes: np.ndarray, params: np.ndarray, x: np.ndarray, buf: np.n
     return src
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def argmax_js(buf: np.ndarray, k: int, n: int) -> int:
     """deepqlearn's greedy choice: scan 0…n−1 with strict ``>`` (ties → lowest; NaN never wins)."""
     best = 0
@@ -196,7 +203,7 @@ def argmax_js(buf: np.ndarray, k: int, n: int) -> int:
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def forward_batch_flat(codes: np.ndarray, params: np.ndarray, xs: np.ndarray, out: np.ndarray, max_width: int) -> None:
     buf = np.empty((2, max_width))
     n_out = codes[codes.shape[0] - 1, C_OUT]

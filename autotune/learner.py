@@ -49,6 +49,11 @@ Randomness: everything derives from ``np.random.SeedSequence(seed)`` — a numpy
 learner's draws, one for the agents, a torch generator for initialisation and dropout masks, and
 the simulator's ``Math.random`` state; no global RNG is touched.
 
+Parity with the JS learner (``bench/learner_parity.py``; network_basic, seeds 1–8, evaluated like
+learner_scores*.json): v2 median 66.20 mph vs the original's 66.30, no collapsed seed (24 seeds:
+66.39, 2 collapsed); v1 median 68.75 vs 70.41 (56 seeds: 68.8 in float32, 69.1 in float64, an
+independent minimal numpy learner 69.6; about 1 in 25 seeds collapses near 52 mph, the original 1 of 8).
+
 Speed: one decision = one simulator call + one ``learn`` call. The batch update is a hand-written
 forward/backward over preallocated buffers (``_Kernel``; the s₀ and s₁ halves of the batch go
 through the net as one 2B-row matrix), the greedy action uses numpy views of the same parameter
@@ -64,6 +69,7 @@ import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 import torch
 
@@ -141,14 +147,38 @@ def build_network(config: TrainConfig, generator: torch.Generator) -> tuple[Any,
     module = netspec.build_torch(layers, dtype=dtype)
     prefs = netspec.fc_bias_prefs(layers)
     with torch.no_grad():
-        for lin, pref in zip(module.fc_layers, prefs):
+        for lin, pref in zip(module.fc_layers, prefs, strict=True):
             fan_in = lin.weight.shape[1]
             lin.weight.normal_(0.0, math.sqrt(1.0 / fan_in), generator=generator)
             lin.bias.fill_(pref)
-    for p in module.parameters():
-        p.requires_grad_(False)
+    _flatten_parameters(module)
     module.eval()
     return module, layers
+
+
+def _flatten_parameters(module: Any) -> torch.Tensor:
+    """Move every fc's parameters into one flat tensor — all weights first, then all biases.
+
+    The Linear parameters become views of it, so the optimizer updates the whole net with a few
+    whole-tensor operations (decay on the weight block only). Returns the flat tensor.
+    """
+    fcs = module.fc_layers
+    weights = [lin.weight.data for lin in fcs]
+    biases = [lin.bias.data for lin in fcs]
+    total = sum(t.numel() for t in weights + biases)
+    flat = torch.empty(total, dtype=weights[0].dtype)
+    off = 0
+    for t in [lin.weight for lin in fcs] + [lin.bias for lin in fcs]:
+        n = t.numel()
+        view = flat[off : off + n].view(t.shape)
+        view.copy_(t.data)
+        t.data = view
+        off += n
+    for p in module.parameters():
+        p.requires_grad_(False)
+    module.flat_params = flat  # type: ignore[attr-defined]
+    module.n_weights = sum(t.numel() for t in weights)  # type: ignore[attr-defined]
+    return flat
 
 
 # --------------------------------------------------------------------------------------------
@@ -162,7 +192,7 @@ def build_network(config: TrainConfig, generator: torch.Generator) -> tuple[Any,
 
 
 class _FCOp:
-    def __init__(self, lin: Any, x: torch.Tensor, B: int, need_dx: bool) -> None:
+    def __init__(self, lin: Any, x: torch.Tensor, B: int, need_dx: bool, flat_grad: torch.Tensor) -> None:
         self.W = lin.weight.data
         self.b = lin.bias.data
         self.WT = self.W.t()
@@ -170,8 +200,10 @@ class _FCOp:
         self.x = x
         self.x0 = x[:B]
         self.out = torch.empty(2 * B, n_out, dtype=x.dtype)
-        self.gW = torch.zeros_like(self.W)
-        self.gb = torch.zeros_like(self.b)
+        # gradients live in a flat tensor laid out like module.flat_params
+        w_off, b_off = self.W.storage_offset(), self.b.storage_offset()
+        self.gW = flat_grad[w_off : w_off + self.W.numel()].view(self.W.shape)
+        self.gb = flat_grad[b_off : b_off + self.b.numel()]
         self.dx = torch.empty(B, x.shape[1], dtype=x.dtype) if need_dx else None
 
     def fwd(self) -> None:
@@ -192,14 +224,16 @@ class _ReluOp:
     def __init__(self, x: torch.Tensor, B: int) -> None:
         self.out = x
         self.y0 = x[:B]
-        self.mask = torch.empty(B, x.shape[1], dtype=torch.bool)
+        self.mask = torch.empty(B, x.shape[1], dtype=x.dtype)
 
     def fwd(self) -> None:
         self.out.relu_()
 
     def bwd(self, d: torch.Tensor) -> torch.Tensor:
-        torch.le(self.y0, 0.0, out=self.mask)
-        return d.masked_fill_(self.mask, 0.0)
+        # gradient passes where the output is > 0: sign(y) ∈ {0, 1} for y = relu(x) (NaN only in a
+        # diverged net, where training stops anyway). Cheaper than a boolean mask + masked_fill.
+        torch.sign(self.y0, out=self.mask)
+        return d.mul_(self.mask)
 
 
 class _TanhOp:
@@ -347,6 +381,9 @@ class _Kernel:
         self.oh = torch.empty(B, NUM_ACTIONS, dtype=dtype)
         self.r = torch.empty(B, dtype=dtype)
         fcs = iter(module.fc_layers)
+        self.P = module.flat_params
+        self.G = torch.zeros_like(self.P)
+        n_w = module.n_weights
         ops: list[Any] = []
         cur = self.x
         first_fc = next(i for i, layer in enumerate(layers) if isinstance(layer, netspec.FC))
@@ -356,7 +393,7 @@ class _Kernel:
             if isinstance(layer, netspec.Input):
                 continue
             if isinstance(layer, netspec.FC):
-                op: Any = _FCOp(next(fcs), cur, B, need_dx=i > first_fc)
+                op: Any = _FCOp(next(fcs), cur, B, need_dx=i > first_fc, flat_grad=self.G)
                 self.fc_ops.append(op)
             elif isinstance(layer, netspec.Relu):
                 op = _ReluOp(cur, B)
@@ -401,14 +438,12 @@ class _Kernel:
         self.y_flat = self.y.view(B)
         self.dq = torch.empty(B, NUM_ACTIONS, dtype=dtype)
         self.dq_flat = self.dq.view(-1)
-        # optimizer state
+        # optimizer state (flat: weights block first, then biases; see _flatten_parameters)
         fc_layers = [layer for layer in layers if isinstance(layer, netspec.FC)]
         self.Ws = [op.W for op in self.fc_ops]
-        self.bs = [op.b for op in self.fc_ops]
         self.gWs = [op.gW for op in self.fc_ops]
-        self.gbs = [op.gb for op in self.fc_ops]
-        self.params = self.Ws + self.bs
-        self.grads = self.gWs + self.gbs
+        self.Pw = self.P[:n_w]
+        self.Gw = self.G[:n_w]
         l2 = float(config.l2_decay)
         l1 = float(config.l1_decay)
         self.l2 = [l2 * layer.l2_decay_mul for layer in fc_layers]
@@ -422,8 +457,10 @@ class _Kernel:
         self.ro = float(config.ro)
         self.eps = float(config.eps)
         self.inv_b = 1.0 / B
-        self.state1 = [torch.zeros_like(p) for p in self.params]  # gsum (velocity / squared-gradient average)
-        self.state2 = [torch.zeros_like(p) for p in self.params] if self.method == "adadelta" else []
+        self.S1 = torch.zeros_like(self.P)  # gsum: velocity / squared-gradient average
+        self.S2 = torch.zeros_like(self.P) if self.method == "adadelta" else None  # xsum
+        self.tmp = torch.empty_like(self.P)
+        self.tmp2 = torch.empty_like(self.P) if self.method in ("adadelta", "nesterov") else None
 
     def step(self, SS: torch.Tensor, OH: torch.Tensor, R: torch.Tensor, idx: torch.Tensor) -> None:
         """One convnetjs batch update from the replay rows ``idx``."""
@@ -450,57 +487,50 @@ class _Kernel:
         return 0.5 * float(torch.dot(self.dq_flat, self.dq_flat)) * self.inv_b
 
     def _update(self) -> None:
-        gWs, Ws = self.gWs, self.Ws
+        """convnetjs Trainer update of every parameter (spec §10.5, §10.9), on the flat tensors."""
+        P, G, S = self.P, self.G, self.S1
         if self.any_l2:
             if self.l2_uniform is not None:
-                torch._foreach_add_(gWs, Ws, alpha=self.l2_uniform)
+                self.Gw.add_(self.Pw, alpha=self.l2_uniform)  # l2·w on weights only (biases: l2_decay_mul 0)
             else:
-                for g, w, c in zip(gWs, Ws, self.l2):
+                for g, w, c in zip(self.gWs, self.Ws, self.l2, strict=True):
                     g.add_(w, alpha=c)
         if self.any_l1:
-            for g, w, c in zip(gWs, Ws, self.l1):
+            for g, w, c in zip(self.gWs, self.Ws, self.l1, strict=True):
                 if c:
                     g.add_(torch.where(w > 0, 1.0, -1.0).to(w.dtype), alpha=c)  # sign(w), with sign(0) = −1
-        P, G, S = self.params, self.grads, self.state1
         method = self.method
         if method == "sgd":
             if self.mu > 0.0:
-                torch._foreach_mul_(S, self.mu)  # v = μv − lr·g ; w += v
-                torch._foreach_add_(S, G, alpha=-self.lr * self.inv_b)
-                torch._foreach_add_(P, S)
+                S.mul_(self.mu).add_(G, alpha=-self.lr * self.inv_b)  # v = μv − lr·g
+                P.add_(S)  # w += v
             else:
-                torch._foreach_add_(P, G, alpha=-self.lr * self.inv_b)  # w −= lr·g
+                P.add_(G, alpha=-self.lr * self.inv_b)  # w −= lr·g
             return
-        torch._foreach_mul_(G, self.inv_b)  # g = (decay + dw)/batch_size
+        G.mul_(self.inv_b)  # g = (decay + dw)/batch_size
+        tmp = self.tmp
         if method == "adagrad":
-            torch._foreach_addcmul_(S, G, G)
-            denom = torch._foreach_add(S, self.eps)
-            torch._foreach_sqrt_(denom)
-            torch._foreach_addcdiv_(P, G, denom, value=-self.lr)
+            S.addcmul_(G, G)  # G += g²
+            torch.add(S, self.eps, out=tmp).sqrt_()
+            P.addcdiv_(G, tmp, value=-self.lr)  # w −= lr·g/√(G + ε)
         elif method == "windowgrad":
-            torch._foreach_mul_(S, self.ro)
-            torch._foreach_addcmul_(S, G, G, value=1.0 - self.ro)
-            denom = torch._foreach_add(S, self.eps)
-            torch._foreach_sqrt_(denom)
-            torch._foreach_addcdiv_(P, G, denom, value=-self.lr)
+            S.mul_(self.ro).addcmul_(G, G, value=1.0 - self.ro)  # G = ρG + (1−ρ)g²
+            torch.add(S, self.eps, out=tmp).sqrt_()
+            P.addcdiv_(G, tmp, value=-self.lr)
         elif method == "adadelta":
-            X = self.state2
-            torch._foreach_mul_(S, self.ro)
-            torch._foreach_addcmul_(S, G, G, value=1.0 - self.ro)
-            ratio = torch._foreach_div(torch._foreach_add(X, self.eps), torch._foreach_add(S, self.eps))
-            torch._foreach_sqrt_(ratio)
-            dx = torch._foreach_mul(ratio, G)
-            torch._foreach_neg_(dx)  # Δ = −√((X + ε)/(G + ε))·g
-            torch._foreach_mul_(X, self.ro)
-            torch._foreach_addcmul_(X, dx, dx, value=1.0 - self.ro)
-            torch._foreach_add_(P, dx)
+            X, dx = self.S2, self.tmp2
+            assert X is not None and dx is not None
+            S.mul_(self.ro).addcmul_(G, G, value=1.0 - self.ro)
+            torch.add(X, self.eps, out=dx)
+            torch.add(S, self.eps, out=tmp)
+            dx.div_(tmp).sqrt_().mul_(G).neg_()  # Δ = −√((X + ε)/(G + ε))·g
+            X.mul_(self.ro).addcmul_(dx, dx, value=1.0 - self.ro)  # X = ρX + (1−ρ)Δ²
+            P.add_(dx)
         elif method == "nesterov":
-            old = torch._foreach_mul(S, self.mu)  # μ·V_old
-            torch._foreach_mul_(S, self.mu)
-            torch._foreach_add_(S, G, alpha=self.lr)  # V = μV + lr·g
-            torch._foreach_add_(P, old)
-            torch._foreach_add_(P, S, alpha=-(1.0 + self.mu))  # w += μ·V_old − (1 + μ)·V
-        # grads are overwritten by the next backward pass (no zeroing needed)
+            torch.mul(S, self.mu, out=tmp)  # μ·V_old
+            S.mul_(self.mu).add_(G, alpha=self.lr)  # V = μV + lr·g
+            P.add_(tmp).add_(S, alpha=-(1.0 + self.mu))  # w += μ·V_old − (1 + μ)·V
+        # G is overwritten by the next backward pass (fc layers below a mid-network svm: re-zeroed)
 
 
 # --------------------------------------------------------------------------------------------
@@ -842,7 +872,9 @@ class GreedyPolicy:
             actions[explore] = (5.0 * self.rng.random(int(explore.sum()))).astype(np.int64)
         warm = fp <= tw
         if warm.any():
-            actions[warm] = 0 if self.config.ruleset == "v2" else (5.0 * self.rng.random(int(warm.sum()))).astype(np.int64)
+            actions[warm] = (
+                0 if self.config.ruleset == "v2" else (5.0 * self.rng.random(int(warm.sum()))).astype(np.int64)
+            )
         if tw:
             step = S + NUM_ACTIONS
             h = self._hist[slots]
@@ -864,7 +896,14 @@ def quick_evaluate(
 ) -> EvalResult:
     """Short custom-protocol evaluation (``runs`` independent worlds × ``frames``) of the greedy net."""
     policy = GreedyPolicy(module, config, rng)
-    return evaluate(config.engine_config, policy, "custom", seed=seed, runs=runs, frames=frames)
+    # One numba thread: a 20-world batch is too small to amortise the parallel region's barriers,
+    # which become very slow when the other cores are busy (e.g. parallel trials).
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return evaluate(config.engine_config, policy, "custom", seed=seed, runs=runs, frames=frames)
+    finally:
+        numba.set_num_threads(old)
 
 
 # --------------------------------------------------------------------------------------------
@@ -962,6 +1001,8 @@ class TrainResult:
     wall_seconds: float
     train_seconds: float
     """Wall time without the quick evaluations."""
+    train_cpu_seconds: float
+    """Process CPU time without the quick evaluations (robust to a busy machine; single-threaded run)."""
     runs_completed: int
     training_run_scores: list[float]
     """Scores of the completed training runs (what train.js's doEvalRun computes)."""
@@ -995,6 +1036,7 @@ class TrainResult:
             "updates": self.updates,
             "wall_seconds": self.wall_seconds,
             "train_seconds": self.train_seconds,
+            "train_cpu_seconds": self.train_cpu_seconds,
             "iterations_per_second": self.iterations_per_second,
             "frames_per_second": self.frames_per_second,
             "runs_completed": self.runs_completed,
@@ -1042,7 +1084,7 @@ def train(
     ``StopTraining``; other exceptions propagate. A diverging net (non-finite Q or loss) ends
     training with ``result.diverged`` set. ``progress(frames_done, total_frames)`` is called about
     every 1 % (for progress bars). ``torch_threads`` sets torch's intra-op threads for the run
-    (restored afterwards; None leaves it alone).
+    (restored afterwards; None leaves it alone); denormal flushing is on during the run and off after.
     """
     if reporter is not None and not quick_eval:
         raise ValueError("reporter: needs quick_eval=True (the reporter receives the quick score)")
@@ -1052,6 +1094,7 @@ def train(
     old_threads = torch.get_num_threads()
     if torch_threads is not None:
         torch.set_num_threads(torch_threads)
+    torch.set_flush_denormal(True)  # tiny activations must not hit the slow denormal path (reset to off after)
     try:
         with torch.no_grad():
             return _train(
@@ -1061,6 +1104,7 @@ def train(
     finally:
         if torch_threads is not None:
             torch.set_num_threads(old_threads)
+        torch.set_flush_denormal(False)
 
 
 def _train(
@@ -1079,16 +1123,18 @@ def _train(
     s_eval: np.random.SeedSequence,
 ) -> TrainResult:
     t0 = time.perf_counter()
+    c0 = time.process_time()
     brain = DeepQLearner(config, s_brain)
     eval_rng = np.random.default_rng(s_eval)
     runs, frames_per_run = config.schedule
     curve: list[CurvePoint] = []
     eval_seconds = 0.0
-    result = dict(diverged=False, diverged_reason=None, stopped=False, stop_reason=None)
+    eval_cpu = 0.0
+    result: dict[str, Any] = dict(diverged=False, diverged_reason=None, stopped=False, stop_reason=None)
     agent_decisions = 0
     sim: Simulator | None = None
     if runs == 0:
-        return _result(config, seed, brain, curve, None, 0, t0, eval_seconds, result)
+        return _result(config, seed, brain, curve, None, 0, (t0, c0), (eval_seconds, eval_cpu), result)
 
     sim = Simulator(config.engine_config, 1, frames_per_run, runs)
     if config.ruleset == "v2":
@@ -1122,11 +1168,13 @@ def _train(
                 car = step(action)
                 if decisions >= next_mark:
                     te = time.perf_counter()
+                    ce = time.process_time()
                     stop = _report(
                         k_mark, brain, sim, config, curve, quick_eval, quick_eval_runs, quick_eval_frames,
                         quick_eval_seed, eval_rng, reporter, t0,
                     )  # fmt: skip
                     eval_seconds += time.perf_counter() - te
+                    eval_cpu += time.process_time() - ce
                     k_mark += 1
                     next_mark = marks[k_mark] if k_mark < len(marks) else total_decisions + 1
                     if stop is not None:
@@ -1144,7 +1192,7 @@ def _train(
         result["diverged_reason"] = str(exc)
     if progress is not None:
         progress(sim.frames_simulated, total_frames)
-    return _result(config, seed, brain, curve, sim, agent_decisions, t0, eval_seconds, result)
+    return _result(config, seed, brain, curve, sim, agent_decisions, (t0, c0), (eval_seconds, eval_cpu), result)
 
 
 def _report(
@@ -1197,11 +1245,12 @@ def _result(
     curve: list[CurvePoint],
     sim: Simulator | None,
     agent_decisions: int,
-    t0: float,
-    eval_seconds: float,
+    starts: tuple[float, float],
+    eval_times: tuple[float, float],
     status: dict[str, Any],
 ) -> TrainResult:
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - starts[0]
+    cpu = time.process_time() - starts[1]
     brain.module.eval()
     if sim is not None:
         done = int(sim.ints[0, I_RUNS_DONE])
@@ -1220,7 +1269,8 @@ def _result(
         agent_decisions=agent_decisions,
         updates=brain.updates,
         wall_seconds=wall,
-        train_seconds=max(wall - eval_seconds, 1e-9),
+        train_seconds=max(wall - eval_times[0], 1e-9),
+        train_cpu_seconds=max(cpu - eval_times[1], 1e-9),
         runs_completed=done,
         training_run_scores=scores,
         final_epsilon=brain.epsilon,
@@ -1246,7 +1296,9 @@ class _TrainingAgents:
         self._u: list[float] = []
         self._ui = 0
         self.tw = config.temporal_window
-        self.epsilon = js_epsilon(self.tw + 1, config.learning_steps_burnin, config.learning_steps_total, config.epsilon_min)
+        self.epsilon = js_epsilon(
+            self.tw + 1, config.learning_steps_burnin, config.learning_steps_total, config.epsilon_min
+        )
         self.frozen: Any = None
         self._hist: np.ndarray | None = None
 

@@ -73,9 +73,9 @@ def js_num(x: float) -> str:
     r = repr(x)
     if "e" not in r:  # Python prints plain decimals for 1e-4 ≤ |x| < 1e16, where JS does too
         return r[:-2] if r.endswith(".0") else r
-    sign, digits, exp = decimal.Decimal(r).as_tuple()
+    sign, digits, exponent = decimal.Decimal(r).as_tuple()
     ds = "".join(map(str, digits)).rstrip("0")
-    exp += len(digits) - len(ds)
+    exp = int(exponent) + len(digits) - len(ds)
     k = len(ds)
     n = exp + k  # x = 0.ds × 10^n
     neg = "-" if sign else ""
@@ -214,7 +214,9 @@ def settings_from_config(cfg: dict[str, Any], where: str = "config") -> NetSetti
         values[field] = _check_value(f"{where}.{key}", value, kind)
     for name in _REQUIRED:
         if name not in values:
-            camel = {"lanes_side": "lanesSide", "patches_ahead": "patchesAhead", "patches_behind": "patchesBehind"}[name]
+            camel = {"lanes_side": "lanesSide", "patches_ahead": "patchesAhead", "patches_behind": "patchesBehind"}[
+                name
+            ]
             raise NetFormatError(f"{where}.{camel}: missing (required to size the input)")
     if values["patches_ahead"] + values["patches_behind"] < 1:
         raise NetFormatError(f"{where}.patchesAhead: patchesAhead + patchesBehind must be ≥ 1")
@@ -343,7 +345,9 @@ def parse_net(obj: Any) -> ConvNet:
         if t is None:
             raise NetFormatError(f"{where}.layer_type: missing")
         if t not in SUPPORTED_TYPES:
-            raise NetFormatError(f"{where}.layer_type: unknown layer type {t!r} (supported: {', '.join(SUPPORTED_TYPES)})")
+            raise NetFormatError(
+                f"{where}.layer_type: unknown layer type {t!r} (supported: {', '.join(SUPPORTED_TYPES)})"
+            )
         if (t == "input") != (i == 0):
             raise NetFormatError(f"{where}.layer_type: the first layer must be 'input' and only the first, got {t!r}")
         if t == "input":
@@ -372,7 +376,7 @@ def parse_net(obj: Any) -> ConvNet:
             if "biases" not in layer:
                 raise NetFormatError(f"{where}.biases: missing")
             b = _vol_values(layer["biases"], f"{where}.biases", out_depth, "biases (out_depth)")
-            l1 = _float_field(layer, where, "l1_decay_mul", 0.0)
+            l1 = _float_field(layer, where, "l1_decay_mul", 1.0)  # fromJSON defaults both to 1.0
             l2 = _float_field(layer, where, "l2_decay_mul", 1.0)
             layers.append(FC(out_depth, bias_pref=None, l1_decay_mul=l1, l2_decay_mul=l2))
             params.append((w, b))
@@ -385,7 +389,10 @@ def parse_net(obj: Any) -> ConvNet:
             if g < 1:
                 raise NetFormatError(f"{where}.group_size: must be ≥ 1, got {g}")
             if not flat:
-                raise NetFormatError(f"{where}: maxout on a {items[0].get('out_sx')}×{items[0].get('out_sy')} input volume is not supported")
+                raise NetFormatError(
+                    f"{where}: maxout on a {items[0].get('out_sx')}×{items[0].get('out_sy')} input volume "
+                    "is not supported"
+                )
             expected = prev // g
             new: Layer = Maxout(g)
         elif t == "relu":
@@ -398,11 +405,18 @@ def parse_net(obj: Any) -> ConvNet:
             new = Dropout(_float_field(layer, where, "drop_prob", 0.5))
         elif t == "lrn":
             if not flat:
-                raise NetFormatError(f"{where}: lrn on a {items[0].get('out_sx')}×{items[0].get('out_sy')} input volume is not supported")
+                raise NetFormatError(
+                    f"{where}: lrn on a {items[0].get('out_sx')}×{items[0].get('out_sy')} input volume is not supported"
+                )
             n = _int_field(layer, where, "n")
             if n < 1:
                 raise NetFormatError(f"{where}.n: must be ≥ 1, got {n}")
-            new = LRN(_float_field(layer, where, "k"), n, _float_field(layer, where, "alpha"), _float_field(layer, where, "beta"))
+            new = LRN(
+                _float_field(layer, where, "k"),
+                n,
+                _float_field(layer, where, "alpha"),
+                _float_field(layer, where, "beta"),
+            )
         else:  # svm, softmax, regression: out_depth = num_inputs = previous size
             n_in = _int_field(layer, where, "num_inputs", prev)
             if n_in != prev:
@@ -413,9 +427,13 @@ def parse_net(obj: Any) -> ConvNet:
             sx = _int_field(items[0], "layers[0]", "out_sx", 1)
             sy = _int_field(items[0], "layers[0]", "out_sy", 1)
             if out_depth * sx * sy != prev:
-                raise NetFormatError(f"{where}.out_depth: {out_depth}, expected {prev // (sx * sy)} for a {sx}×{sy} volume")
+                raise NetFormatError(
+                    f"{where}.out_depth: {out_depth}, expected {prev // (sx * sy)} for a {sx}×{sy} volume"
+                )
         elif out_depth != expected:
-            raise NetFormatError(f"{where}.out_depth: {out_depth}, expected {expected} (from the previous layer's {prev} outputs)")
+            raise NetFormatError(
+                f"{where}.out_depth: {out_depth}, expected {expected} (from the previous layer's {prev} outputs)"
+            )
         layers.append(new)
         prev = expected
         if t in ("svm", "softmax", "regression"):
@@ -480,14 +498,17 @@ def validate(net: ConvNet, settings: NetSettings) -> None:
         )
     n_out = net.output_size
     if n_out != NUM_ACTIONS:
-        raise NetFormatError(f"layers[{len(net.layers) - 1}]: the net has {n_out} outputs; DeepTraffic needs {NUM_ACTIONS} (one Q-value per action)")
+        raise NetFormatError(
+            f"layers[{len(net.layers) - 1}]: the net has {n_out} outputs; "
+            f"DeepTraffic needs {NUM_ACTIONS} (one Q-value per action)"
+        )
 
 
 def load(net_path: str | Path, config_path: str | Path | None = None) -> tuple[ConvNet, NetSettings]:
     """Read and cross-validate a net JSON and its config (default: ``<net>.config.json`` beside it)."""
     cfg_path = default_config_path(net_path) if config_path is None else config_path
-    settings = load_config(cfg_path)
     net = load_net(net_path)
+    settings = load_config(cfg_path)
     validate(net, settings)
     return net, settings
 
@@ -510,7 +531,7 @@ def dumps_net(net: ConvNet) -> str:
     first = net.layers[0]
     assert isinstance(first, Input)
     sx, sy = first.out_sx, first.out_sy
-    for layer, (n_in, n_out) in zip(net.layers, sizes):
+    for layer, (n_in, n_out) in zip(net.layers, sizes, strict=True):
         t = layer_type(layer)
         if isinstance(layer, (FC, SVM, Softmax, Regression)):
             sx = sy = 1  # these layers flatten their input (out_depth = num_inputs)
@@ -524,7 +545,8 @@ def dumps_net(net: ConvNet) -> str:
             filters = ",".join(_vol_text(w[j], 1, 1, n_in) for j in range(n_out))
             parts.append(
                 "{" + head + f',"num_inputs":{n_in},"l1_decay_mul":{js_num(layer.l1_decay_mul)},'
-                f'"l2_decay_mul":{js_num(layer.l2_decay_mul)},"filters":[{filters}],"biases":{_vol_text(b, 1, 1, n_out)}' + "}"
+                f'"l2_decay_mul":{js_num(layer.l2_decay_mul)},"filters":[{filters}],'
+                f'"biases":{_vol_text(b, 1, 1, n_out)}' + "}"
             )
         elif isinstance(layer, Maxout):
             parts.append("{" + head + f',"group_size":{layer.group_size}' + "}")

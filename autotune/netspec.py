@@ -17,17 +17,23 @@ import/export is ``autotune.netjson``; the simulator policy is ``autotune.brain_
 
 API for the training side (torch)::
 
-    from autotune.netspec import Input, FC, Regression, expand, build_torch, to_torch, from_torch, init_convnet
+    from autotune.netspec import Input, FC, Regression, expand, build_torch, to_torch, from_torch
+    from autotune.netjson import NetSettings, write_net, dumps_net, export_netjs
+    from autotune.brain_policy import evaluate_net
 
     layers = expand([Input(net_inputs), FC(36, "tanh"), FC(24, "tanh"), Regression(5)])
-    module = build_torch(layers, dtype=torch.float32)   # nn.Sequential subclass; Linear i ↔ FC i
+    # (or expand(deepqlearn_defs(net_inputs, "fc:36:tanh|fc:24:tanh")))
+    module = build_torch(layers, dtype=torch.float32)   # nn.Sequential subclass; Linear k ↔ k-th FC
     ...train module...
     net = from_torch(module, layers)                    # ConvNet (float64) with the trained weights
-    # export: autotune.netjson.dumps_net(net) / write_net(path, net, settings)
-    # evaluate: autotune.brain_policy.evaluate_net(net, settings, "v2-official")
+    settings = NetSettings(lanes_side=3, patches_ahead=50, patches_behind=10, temporal_window=0,
+                           other_agents=0, epsilon_test_time=0.0)  # + opt fields (gamma, …) if wanted
+    write_net("out/net.json", net, settings)            # convnetjs JSON + net.config.json beside it
+    export_netjs(net, settings)                         # net.js text for the DeepTraffic page
+    result = evaluate_net(net, settings, "v2-official") # exact evaluation (sim.protocols.EvalResult)
 
-    to_torch(net)                                        # ConvNet → module with its weights (float64 default)
-    init_convnet(layers, seed)                           # convnetjs-style initial weights (N(0, 1/fan_in), biases)
+    to_torch(net, dtype=torch.float64)                  # ConvNet → module carrying its weights
+    init_convnet(layers, seed)                          # convnetjs-style fresh weights (N(0, 1/fan_in), bias_pref)
 
 The torch module mirrors convnetjs in both modes where convnetjs differs from torch defaults:
 ``ConvnetDropout`` zeroes with probability p in training **without rescaling** and multiplies by p
@@ -40,7 +46,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Sequence
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
@@ -140,7 +146,7 @@ class LRN:
     beta: float
 
 
-Layer = Union[Input, FC, Relu, Tanh, Sigmoid, Maxout, Dropout, SVM, Softmax, Regression, LRN]
+Layer = Input | FC | Relu | Tanh | Sigmoid | Maxout | Dropout | SVM | Softmax | Regression | LRN
 LAYER_TYPES = {
     "input": Input,
     "fc": FC,
@@ -332,11 +338,11 @@ class ConvNet:
 
     def __post_init__(self) -> None:
         sizes = layer_sizes(self.layers)
-        fcs = [(i, s) for i, (layer, s) in enumerate(zip(self.layers, sizes)) if isinstance(layer, FC)]
+        fcs = [(i, s) for i, (layer, s) in enumerate(zip(self.layers, sizes, strict=True)) if isinstance(layer, FC)]
         if len(fcs) != len(self.params):
             raise NetSpecError(f"params: {len(self.params)} (weights, biases) pairs for {len(fcs)} fc layers")
         fixed = []
-        for k, ((i, (n_in, n_out)), (w, b)) in enumerate(zip(fcs, self.params)):
+        for (i, (n_in, n_out)), (w, b) in zip(fcs, self.params, strict=True):
             w = np.ascontiguousarray(w, dtype=np.float64)
             b = np.ascontiguousarray(b, dtype=np.float64)
             if w.shape != (n_out, n_in):
@@ -374,15 +380,22 @@ class ConvNet:
         return format_hidden(defs[1:])
 
     def same_as(self, other: ConvNet) -> bool:
-        """Identical layers and bit-identical parameters (NaN payloads compared bitwise)."""
-        if self.layers != other.layers or len(self.params) != len(other.params):
+        """Same layers (an fc's ``bias_pref`` — initialisation only — ignored) and bit-identical parameters."""
+        if _structure(self.layers) != _structure(other.layers) or len(self.params) != len(other.params):
             return False
-        for (w1, b1), (w2, b2) in zip(self.params, other.params):
+        for (w1, b1), (w2, b2) in zip(self.params, other.params, strict=True):
             if w1.shape != w2.shape or b1.shape != b2.shape:
                 return False
-            if not (np.array_equal(w1.view(np.int64), w2.view(np.int64)) and np.array_equal(b1.view(np.int64), b2.view(np.int64))):
+            if not (
+                np.array_equal(w1.view(np.int64), w2.view(np.int64))
+                and np.array_equal(b1.view(np.int64), b2.view(np.int64))
+            ):
                 return False
         return True
+
+
+def _structure(layers: Sequence[Layer]) -> tuple[Layer, ...]:
+    return tuple(dataclasses.replace(x, bias_pref=None) if isinstance(x, FC) else x for x in layers)
 
 
 def fc_bias_prefs(layers: Sequence[Layer]) -> list[float]:
@@ -401,7 +414,7 @@ def init_convnet(layers: Sequence[Layer], seed: int = 0) -> ConvNet:
     sizes = layer_sizes(layers)
     rng = np.random.default_rng(seed)
     params = []
-    for layer, (n_in, n_out) in zip(layers, sizes):
+    for layer, (n_in, n_out) in zip(layers, sizes, strict=True):
         if isinstance(layer, FC):
             w = rng.standard_normal((n_out, n_in)) * math.sqrt(1.0 / n_in)
             b = np.full(n_out, float(layer.bias_pref or 0.0))
@@ -479,7 +492,7 @@ def parse_hidden(text: str | None) -> tuple[Layer, ...]:
         elif kind in ("relu", "tanh", "sigmoid"):
             if args:
                 raise NetSpecError(f"{where}: {kind} takes no arguments")
-            out.append({"relu": Relu, "tanh": Tanh, "sigmoid": Sigmoid}[kind]())
+            out.append(Relu() if kind == "relu" else Tanh() if kind == "tanh" else Sigmoid())
         elif kind == "maxout":
             out.append(Maxout(_int(args[0], where) if args else 2))
         elif kind == "dropout":
@@ -495,7 +508,8 @@ def parse_hidden(text: str | None) -> tuple[Layer, ...]:
                 raise NetSpecError(f"{where}: lrn takes no or four arguments (lrn:k:n:alpha:beta)")
         else:
             raise NetSpecError(
-                f"{where}: unknown layer type '{kind}' (use fc, svm, softmax, regression, relu, tanh, sigmoid, maxout, dropout, lrn)"
+                f"{where}: unknown layer type '{kind}' "
+                "(use fc, svm, softmax, regression, relu, tanh, sigmoid, maxout, dropout, lrn)"
             )
     return tuple(out)
 
@@ -539,7 +553,9 @@ def format_hidden(defs: Iterable[Layer]) -> str:
     return "|".join(parts)
 
 
-def deepqlearn_defs(net_inputs: int, hidden: str | Sequence[Layer], num_actions: int = NUM_ACTIONS) -> tuple[Layer, ...]:
+def deepqlearn_defs(
+    net_inputs: int, hidden: str | Sequence[Layer], num_actions: int = NUM_ACTIONS
+) -> tuple[Layer, ...]:
     """The full ``layer_defs`` of a DeepTraffic net: input(net_inputs), hidden, regression(num_actions)."""
     hid = parse_hidden(hidden) if isinstance(hidden, str) else tuple(hidden)
     return (Input(net_inputs), *hid, Regression(num_actions))
@@ -571,7 +587,7 @@ def build_torch(layers: Sequence[Layer], dtype: Any = None) -> Any:
     sizes = layer_sizes(layers)
     mods: list[Any] = []
     last = len(layers) - 1
-    for idx, (layer, (n_in, n_out)) in enumerate(zip(layers, sizes)):
+    for idx, (layer, (n_in, n_out)) in enumerate(zip(layers, sizes, strict=True)):
         if isinstance(layer, Input):
             continue
         if isinstance(layer, FC):
@@ -603,7 +619,7 @@ def to_torch(net: ConvNet, dtype: Any = None) -> Any:
     dtype = torch.float64 if dtype is None else dtype
     module = build_torch(net.layers, dtype=dtype)
     with torch.no_grad():
-        for lin, (w, b) in zip(module.fc_layers, net.params):
+        for lin, (w, b) in zip(module.fc_layers, net.params, strict=True):
             lin.weight.copy_(torch.from_numpy(w).to(dtype))
             lin.bias.copy_(torch.from_numpy(b).to(dtype))
     return module
@@ -618,15 +634,19 @@ def from_torch(module: Any, template: ConvNet | Sequence[Layer]) -> ConvNet:
     torch = _torch()
     layers = template.layers if isinstance(template, ConvNet) else tuple(template)
     sizes = layer_sizes(layers)
-    shapes = [(n_out, n_in) for layer, (n_in, n_out) in zip(layers, sizes) if isinstance(layer, FC)]
+    shapes = [(n_out, n_in) for layer, (n_in, n_out) in zip(layers, sizes, strict=True) if isinstance(layer, FC)]
     linears = [m for m in module.modules() if isinstance(m, torch.nn.Linear)]
     if len(linears) != len(shapes):
-        raise NetSpecError(f"from_torch: module has {len(linears)} Linear layers, the template has {len(shapes)} fc layers")
+        raise NetSpecError(
+            f"from_torch: module has {len(linears)} Linear layers, the template has {len(shapes)} fc layers"
+        )
     params = []
-    for k, (lin, shape) in enumerate(zip(linears, shapes)):
+    for k, (lin, shape) in enumerate(zip(linears, shapes, strict=True)):
         w = lin.weight.detach().to("cpu", torch.float64).numpy().copy()
         if tuple(w.shape) != shape:
-            raise NetSpecError(f"from_torch: Linear #{k} has weight shape {tuple(w.shape)}, template fc #{k} needs {shape}")
+            raise NetSpecError(
+                f"from_torch: Linear #{k} has weight shape {tuple(w.shape)}, template fc #{k} needs {shape}"
+            )
         if lin.bias is None:
             b = np.zeros(shape[0])
         else:
@@ -636,8 +656,9 @@ def from_torch(module: Any, template: ConvNet | Sequence[Layer]) -> ConvNet:
 
 
 def _make_torch_classes() -> dict[str, Any]:
-    torch = _torch()
-    nn = torch.nn
+    torch: Any = _torch()
+    nn: Any = torch.nn
+    autograd_function: Any = torch.autograd.Function
 
     class ConvNetModule(nn.Sequential):
         """``nn.Sequential`` of a convnetjs net; ``.layers`` keeps the expanded layer list."""
@@ -684,7 +705,7 @@ def _make_torch_classes() -> dict[str, Any]:
         def forward(self, x: Any) -> Any:
             return x.detach() if self.mid_network else x
 
-    class _SoftmaxOwnGrad(torch.autograd.Function):
+    class _SoftmaxOwnGrad(autograd_function):
         @staticmethod
         def forward(ctx: Any, x: Any) -> Any:  # noqa: ANN401
             y = torch.softmax(x, dim=-1)

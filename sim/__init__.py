@@ -22,8 +22,10 @@ def _configure_numba_cache() -> None:
     digest = hashlib.sha1()
     for package in ("sim", "autotune"):
         for path in sorted((root / package).glob("*.py")):
-            digest.update(path.name.encode())
-            digest.update(path.read_bytes())
+            source = path.read_bytes()
+            if b"numba" in source:  # only compiled code can go stale; pure-Python edits keep the cache
+                digest.update(path.name.encode())
+                digest.update(source)
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "deeptraffic-autotune" / "numba"
     numba.config.CACHE_DIR = str(base / digest.hexdigest()[:16])
 

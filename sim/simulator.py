@@ -115,7 +115,7 @@ class Simulator:
         self._actions = np.zeros(w, dtype=np.int64)
         self.run_seeds = np.full((w, runs_per_world), -1, dtype=np.int64)
         self._seeded = False
-        self._parallel = w > 1
+        self._parallel = w >= 16  # below that, waking the thread pool costs more than it saves
 
     # -- seeding -------------------------------------------------------------------------
     def _arrays(self) -> tuple[np.ndarray, ...]:

@@ -1,0 +1,128 @@
+"""Training throughput (trainIterations per second) of the torch learner vs the original JS.
+
+    python bench/train_throughput.py                 # default_v1, network_basic, strong; 3 seeds each
+    python bench/train_throughput.py --repeats 1 --configs network_basic --no-eval
+
+For each reference config (settings and JS wall times from learner_scores.json) the full training
+protocol runs ``--repeats`` times (seeds 1, 2, …; no quick evaluations, as train.js has none) in
+this single process with one torch thread. Reported per config: the median over repeats of
+iterations/s by wall clock and by process CPU time (the CPU figure is robust to other jobs on the
+machine), and the speed-up over the JS (its fastest seed: iterations / train_wall_seconds, i.e.
+≈1,370 it/s default_v1, 515 network_basic, 125 strong; those jobs ran two at a time, one per core,
+on the 2-core reference VM).
+
+Unless ``--no-eval``: a network_basic net trained in v2 is evaluated with the exact official v2
+protocol (``autotune.brain_policy``: 500 runs × 2,000 frames) with 0 and 10 agents; the first call
+includes numba compilation, so a second, warm call is timed too.
+
+Prints a table and one JSON line (prefix ``JSON``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from autotune.config import preset  # noqa: E402
+from autotune.learner import train  # noqa: E402
+
+REFERENCE = ROOT.parent / "shared" / "reference"
+CONFIGS = {"default_v1": "default_v1.json", "network_basic": "network_basic.json", "strong": "strong.json"}
+# Fallback JS figures (learner_scores.json, fastest seed) if the reference folder is not beside the checkout.
+JS_FALLBACK = {"default_v1": 1367.5, "network_basic": 514.8, "strong": 125.1}
+TARGETS = {"network_basic": 10.0, "strong": 20.0}
+
+
+def js_iterations_per_second() -> dict[str, float]:
+    path = REFERENCE / "learner_scores.json"
+    if not path.exists():
+        return dict(JS_FALLBACK)
+    data = json.loads(path.read_text())
+    out = {}
+    for name, file in CONFIGS.items():
+        runs = [r for r in data["runs"] if r["config_file"] == file]
+        rates = [r["train"]["trainIterations"] / r["train"]["wall_seconds"] for r in runs]
+        out[name] = max(rates)  # the JS's best run: the conservative comparison
+    return out
+
+
+def bench_training(names: list[str], repeats: int, iterations: int | None) -> dict[str, dict]:
+    js = js_iterations_per_second()
+    results = {}
+    for name in names:
+        config = preset(name) if iterations is None else preset(name, train_iterations=iterations)
+        wall, cpu, runs = [], [], []
+        for seed in range(1, repeats + 1):
+            r = train(config, seed, quick_eval=False)
+            wall.append(r.decisions / r.train_seconds)
+            cpu.append(r.decisions / r.train_cpu_seconds)
+            runs.append({"seed": seed, "seconds": r.train_seconds, "cpu_seconds": r.train_cpu_seconds,
+                         "updates": r.updates, "diverged": r.diverged,
+                         "training_run_scores": r.training_run_scores})  # fmt: skip
+        med_wall, med_cpu = statistics.median(wall), statistics.median(cpu)
+        results[name] = {
+            "ruleset": config.ruleset,
+            "train_iterations": config.train_iterations,
+            "it_per_s_wall": med_wall,
+            "it_per_s_cpu": med_cpu,
+            "js_it_per_s": js[name],
+            "speedup_wall": med_wall / js[name],
+            "speedup_cpu": med_cpu / js[name],
+            "target_speedup": TARGETS.get(name),
+            "runs": runs,
+        }
+    return results
+
+
+def bench_eval() -> dict[str, dict]:
+    from autotune.train import evaluate_official
+
+    config = preset("network_basic")  # v2
+    net = train(config, 1, quick_eval=False).convnet()
+    out = {}
+    for agents in (0, 10):
+        times = []
+        for _ in range(2):
+            t = time.perf_counter()
+            ev = evaluate_official(net, config, other_agents=agents)
+            times.append(time.perf_counter() - t)
+        out[f"agents_{agents}"] = {"cold_seconds": times[0], "warm_seconds": times[1], "median_site": ev.median_site,
+                                   "mean": ev.mean, "target_seconds": 2.0 if agents == 10 else None}  # fmt: skip
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--iterations", type=int, default=None, help="override trainIterations (default: the config's)")
+    parser.add_argument("--no-eval", action="store_true")
+    args = parser.parse_args()
+    training = bench_training(args.configs, args.repeats, args.iterations)
+    print(f"{'config':<14} {'ruleset':<7} {'iterations':>10} {'it/s wall':>10} {'it/s cpu':>9} {'JS it/s':>8} "
+          f"{'× wall':>7} {'× cpu':>6} {'target':>7}")  # fmt: skip
+    for name, r in training.items():
+        target = f"≥{r['target_speedup']:.0f}×" if r["target_speedup"] else "-"
+        print(f"{name:<14} {r['ruleset']:<7} {r['train_iterations']:>10,} {r['it_per_s_wall']:>10,.0f} "
+              f"{r['it_per_s_cpu']:>9,.0f} {r['js_it_per_s']:>8,.0f} {r['speedup_wall']:>6.1f}× "
+              f"{r['speedup_cpu']:>5.1f}× {target:>7}")  # fmt: skip
+    out = {"training": training}
+    if not args.no_eval:
+        ev = bench_eval()
+        out["v2_official_eval_network_basic"] = ev
+        for key, r in ev.items():
+            print(f"v2-official eval, {key.replace('_', ' ')}: {r['warm_seconds']:.2f} s warm "
+                  f"({r['cold_seconds']:.2f} s cold), median {r['median_site']}")  # fmt: skip
+    print("JSON " + json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -53,10 +53,10 @@ def safety_factor(g: np.ndarray, cars: np.ndarray, w: int, i: int, free: float) 
     v = 2.0
     if base >= 4.0 and base <= N_ROWS and col >= 0.0 and col < N_LANES:
         # common case: the four rows ahead are on the grid, read them without bounds checks
-        lane = g[int(col)]
+        li = int(col)
         top = int(base)
         for k in range(1, 5):
-            d = lane[top - k]
+            d = g[li, top - k]
             if d < free:
                 v = js_min(v, 0.5 * (k - 1))
                 v = js_min(v, d / a)

@@ -114,6 +114,22 @@ class Simulator:
         self._obs_reward = np.zeros(w)
         self._actions = np.zeros(w, dtype=np.int64)
         self.run_seeds = np.full((w, runs_per_world), -1, dtype=np.int64)
+        # the drivers' arguments, in order (the arrays are updated in place, never replaced)
+        self._advance_args = (
+            self.cars,
+            self.grid,
+            self.fs,
+            self.ints,
+            self.mrand,
+            self.cfg,
+            self._actions,
+            self._obs,
+            self._obs_car,
+            self._obs_reward,
+            self.scores,
+            self.ego_scores,
+            self.run_seeds,
+        )
         self._seeded = False
         self._parallel = w >= 16  # below that, waking the thread pool costs more than it saves
 
@@ -168,21 +184,7 @@ class Simulator:
     # -- stepping ------------------------------------------------------------------------
     def _advance(self) -> Observation | None:
         fn = engine.advance_batch if self._parallel else engine.advance_one
-        fn(
-            self.cars,
-            self.grid,
-            self.fs,
-            self.ints,
-            self.mrand,
-            self.cfg,
-            self._actions,
-            self._obs,
-            self._obs_car,
-            self._obs_reward,
-            self.scores,
-            self.ego_scores,
-            self.run_seeds,
-        )
+        fn(*self._advance_args)
         pending = self._obs_car >= 0
         n_pending = int(np.count_nonzero(pending))
         if n_pending == 0:
@@ -239,21 +241,7 @@ class Simulator:
         return int(self._obs_car[0])
 
     def _run_one(self) -> None:
-        engine.advance_one(
-            self.cars,
-            self.grid,
-            self.fs,
-            self.ints,
-            self.mrand,
-            self.cfg,
-            self._actions,
-            self._obs,
-            self._obs_car,
-            self._obs_reward,
-            self.scores,
-            self.ego_scores,
-            self.run_seeds,
-        )
+        engine.advance_one(*self._advance_args)
 
     @property
     def obs_inputs(self) -> np.ndarray:

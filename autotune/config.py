@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from autotune import netspec
-from sim.config import RULESETS, ConfigError, EngineConfig, nearest_key_error
+from sim.config import RULESETS, ConfigError, EngineConfig, input_size, nearest_key_error
 
 __all__ = [
     "ConfigError",
@@ -52,7 +52,7 @@ __all__ = [
     "parse_layers",
 ]
 
-NUM_ACTIONS = 5
+NUM_ACTIONS = netspec.NUM_ACTIONS
 TRAINER_METHODS = ("sgd", "adagrad", "windowgrad", "adadelta", "nesterov")
 DTYPES = ("float32", "float64")
 # fc activations: convnetjs's four, plus two strings that explicitly mean "none" ('softmax' occurs in
@@ -347,13 +347,12 @@ class TrainConfig:
     @property
     def num_states(self) -> int:
         """Length of one state vector, (2·lanes_side + 1)·(patches_ahead + patches_behind)."""
-        return (2 * self.lanes_side + 1) * (self.patches_ahead + self.patches_behind)
+        return input_size(self.lanes_side, self.patches_ahead, self.patches_behind)
 
     @property
     def net_inputs(self) -> int:
         """Network input size: num_states·tw + 5·tw + num_states (spec §10.2)."""
-        tw = self.temporal_window
-        return self.num_states * tw + NUM_ACTIONS * tw + self.num_states
+        return netspec.net_input_size(self.num_states, self.temporal_window)
 
     @property
     def layer_defs(self) -> tuple[netspec.Layer, ...]:

@@ -76,6 +76,7 @@ import torch
 from autotune import netspec
 from autotune.config import NUM_ACTIONS, TrainConfig
 from sim import engine
+from sim.grid import js_max, js_min
 from sim.layout import I_RUNS_DONE
 from sim.protocols import EvalResult, evaluate
 from sim.simulator import Simulator
@@ -108,20 +109,6 @@ class StopTraining(Exception):
 
 class DivergedError(RuntimeError):
     """The network produced a non-finite Q-value or loss; ``train`` catches it into ``TrainResult``."""
-
-
-def js_min(a: float, b: float) -> float:
-    """JS ``Math.min`` of two numbers (NaN-propagating)."""
-    if a != a or b != b:
-        return math.nan
-    return a if a < b else b
-
-
-def js_max(a: float, b: float) -> float:
-    """JS ``Math.max`` of two numbers (NaN-propagating)."""
-    if a != a or b != b:
-        return math.nan
-    return a if a > b else b
 
 
 def js_epsilon(age: int, burnin: int, total: int, epsilon_min: float) -> float:

@@ -49,7 +49,9 @@ from autotune.netspec import (
     collapse,
     layer_sizes,
     layer_type,
+    net_input_size,
 )
+from sim.config import input_size
 
 SUPPORTED_TYPES = ("input", "fc", "relu", "tanh", "sigmoid", "maxout", "dropout", "svm", "softmax", "regression", "lrn")
 
@@ -136,13 +138,12 @@ class NetSettings:
     @property
     def num_inputs(self) -> int:
         """``(2L+1)(P+B)``: one car's input vector."""
-        return (2 * self.lanes_side + 1) * (self.patches_ahead + self.patches_behind)
+        return input_size(self.lanes_side, self.patches_ahead, self.patches_behind)
 
     @property
     def net_inputs(self) -> int:
         """``num_inputs·tw + 5·tw + num_inputs``: the network's input size."""
-        tw = self.temporal_window
-        return self.num_inputs * tw + NUM_ACTIONS * tw + self.num_inputs
+        return net_input_size(self.num_inputs, self.temporal_window)
 
     @property
     def engine(self) -> str:

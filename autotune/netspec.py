@@ -553,6 +553,11 @@ def format_hidden(defs: Iterable[Layer]) -> str:
     return "|".join(parts)
 
 
+def net_input_size(num_states: int, temporal_window: int, num_actions: int = NUM_ACTIONS) -> int:
+    """deepqlearn's network input size, ``num_states·tw + num_actions·tw + num_states`` (v1 §10.2)."""
+    return num_states * temporal_window + num_actions * temporal_window + num_states
+
+
 def deepqlearn_defs(
     net_inputs: int, hidden: str | Sequence[Layer], num_actions: int = NUM_ACTIONS
 ) -> tuple[Layer, ...]:

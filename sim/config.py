@@ -23,6 +23,11 @@ CAMEL_ALIASES = {
 }
 
 
+def input_size(lanes_side: int, patches_ahead: int, patches_behind: int) -> int:
+    """Length of one car's input vector, (2·lanes_side + 1)·(patches_ahead + patches_behind) (v1 §7)."""
+    return (2 * lanes_side + 1) * (patches_ahead + patches_behind)
+
+
 class ConfigError(ValueError):
     """A configuration value or key is invalid; the message names the field and the fix."""
 
@@ -71,7 +76,7 @@ class EngineConfig:
     @property
     def num_inputs(self) -> int:
         """Length of one car's input vector, (2·lanes_side + 1)·(patches_ahead + patches_behind)."""
-        return (2 * self.lanes_side + 1) * (self.patches_ahead + self.patches_behind)
+        return input_size(self.lanes_side, self.patches_ahead, self.patches_behind)
 
     @property
     def controlled_cars(self) -> int:

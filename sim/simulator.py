@@ -280,12 +280,7 @@ class Simulator:
             raise RuntimeError("seed the simulator before run_compiled()")
         obs = np.zeros(self.config.num_inputs)
         engine.run_compiled(
-            self.cars,
-            self.grid,
-            self.fs,
-            self.ints,
-            self.mrand,
-            self.cfg,
+            *self._advance_args[:6],  # cars, grid, fs, ints, mrand, cfg
             0,
             policy,
             pstate,

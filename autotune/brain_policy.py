@@ -304,7 +304,12 @@ class BrainPolicy:
         )
 
     def prepare(
-        self, protocol: str, seed: int | None = None, runs: int | None = None, gauss_cache: int = 0
+        self,
+        protocol: str,
+        seed: int | None = None,
+        runs: int | None = None,
+        gauss_cache: int = 0,
+        engine_load: bool = True,
     ) -> int | None:
         """Reset the brains as the protocol's harness builds them; returns ``stream_state`` for ``evaluate``.
 
@@ -314,7 +319,9 @@ class BrainPolicy:
 
         * v2-official: ``mulberry32(seed)``, brain built → the state before the engine load;
         * v1-original: ``mulberry32(seed)``, brain built, v1 engine loaded (60 draws) → the state
-          before ``doEvalRun``;
+          before ``doEvalRun``. ``engine_load=False``: no load draws, as in the harness of
+          ``learner_scores.json``, whose engine existed before ``Math.random`` was seeded (its
+          recorded scores reproduce only that way);
         * v1-distribution: brain built from ``mulberry32(seed)`` (only its Gaussian cache survives the
           per-run re-seeding) → None;
         * custom: world i's brain as if built from ``mulberry32(seed + i)`` → None.
@@ -332,7 +339,7 @@ class BrainPolicy:
         built, cache, _draws = build_draws(self.net, seed, gauss_cache)
         self.reset(1, np.array([cache], dtype=np.int64))
         state: int | None = built
-        if protocol == "v1-original":
+        if protocol == "v1-original" and engine_load:
             state = mulberry32_advance(built, V1_LOAD_DRAWS)
         elif protocol == "v1-distribution":
             state = None
@@ -410,20 +417,23 @@ def evaluate_net(
     progress: ProgressFn | None = None,
     name: str | None = None,
     gauss_cache: int = 0,
+    engine_load: bool = True,
 ) -> EvalResult:
     """Evaluate a trained net exactly as the original harness would (per-run scores in run order).
 
     ``protocol``: v2-official, v1-original, v1-distribution or custom (``sim.protocols``);
     ``ruleset`` defaults to the protocol's (custom: the net's engine); ``other_agents`` (v2)
     defaults to the net's ``otherAgents`` (0 when unset); ``gauss_cache``: convnetjs's Gaussian
-    cache flag before the brain build (0 = fresh process, see ``BrainPolicy.prepare``).
+    cache flag before the brain build (0 = fresh process, see ``BrainPolicy.prepare``);
+    ``engine_load``: v1-original only, whether the engine's 60 construction draws follow the
+    brain build (evaluate.js: yes; the learner_scores.json harness: no).
     """
     ruleset = resolve_ruleset(settings, protocol, ruleset)
     config = engine_config(settings, ruleset, other_agents)
     policy = BrainPolicy(net, settings, ruleset, epsilon=epsilon, name=name)
     proto = PROTOCOLS.get(protocol)
     n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
-    stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache)
+    stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
     if protocol not in ("v2-official", "v1-original", "v1-distribution"):
         return evaluate(
             config,

@@ -74,7 +74,8 @@ import numpy as np
 import torch
 
 from autotune import netspec
-from autotune.config import NUM_ACTIONS, TrainConfig
+from autotune.config import NUM_ACTIONS, ConfigError, TrainConfig
+from autotune.js_learner import OriginalStream
 from sim import engine
 from sim.grid import js_max, js_min
 from sim.layout import I_RUNS_DONE
@@ -609,13 +610,22 @@ class DeepQLearner:
     ``epsilon`` (of the latest decision); plus ``updates`` (batch updates made).
     """
 
-    def __init__(self, config: TrainConfig, seed: int | np.random.SeedSequence = 0) -> None:
+    def __init__(
+        self, config: TrainConfig, seed: int | np.random.SeedSequence = 0, stream: OriginalStream | None = None
+    ) -> None:
         ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
         s_rng, s_torch = ss.spawn(2)
         self.config = config
         self.rng = np.random.default_rng(s_rng)
         self.torch_gen = torch.Generator().manual_seed(int(s_torch.generate_state(1, np.uint64)[0] >> 1))
         self.module, self.layers = build_network(config, self.torch_gen)
+        self._stream = stream
+        if stream is not None:  # the original's draws: weights, slots, indices, rf, actions, Vol Gaussians
+            shapes = [tuple(lin.weight.shape) for lin in self.module.fc_layers]
+            with torch.no_grad():
+                for lin, w in zip(self.module.fc_layers, stream.init_weights(shapes), strict=True):
+                    lin.weight.data.copy_(torch.from_numpy(w))
+            self._uniform = stream.uniform  # type: ignore[method-assign]
         self.kernel = _Kernel(config, self.module, self.layers, self.torch_gen)
         self._np_ops = _numpy_forward_ops(self.module, self.layers, _NP_DTYPES[config.dtype])
         np_dtype = _NP_DTYPES[config.dtype]
@@ -680,7 +690,9 @@ class DeepQLearner:
 
     def _sample_indices(self) -> None:
         n = self.n_exp
-        if n == self.experience_size:  # full memory: indices pre-drawn in blocks
+        if self._stream is not None:
+            self._stream.batch_indices(n, self.config.net_inputs, self._idx)
+        elif n == self.experience_size:  # full memory: indices pre-drawn in blocks
             j = self._ib
             if j >= self._iblock.shape[0]:
                 self._iblock = self.rng.integers(0, n, size=(256, self.kernel.B))
@@ -752,6 +764,8 @@ class DeepQLearner:
             if rf < self.epsilon:
                 action = int(5.0 * self._uniform())
             else:
+                if self._stream is not None:
+                    self._stream.vol(self.config.net_inputs)  # policy() allocates a random Vol first
                 h = x
                 for op in self._np_ops:
                     h = op(h)
@@ -995,6 +1009,9 @@ class TrainResult:
     """Scores of the completed training runs (what train.js's doEvalRun computes)."""
     final_epsilon: float
     experience_size_final: int
+    final_gauss_cache: int | None = None
+    """``stream="original"``: convnetjs's Gaussian cache flag at the end (what a brain built next in the
+    same process starts from); None otherwise."""
     diverged: bool = False
     diverged_reason: str | None = None
     stopped: bool = False
@@ -1030,6 +1047,7 @@ class TrainResult:
             "training_run_scores": self.training_run_scores,
             "final_epsilon": self.final_epsilon,
             "experience_size_final": self.experience_size_final,
+            "final_gauss_cache": self.final_gauss_cache,
             "diverged": self.diverged,
             "diverged_reason": self.diverged_reason,
             "stopped": self.stopped,
@@ -1060,8 +1078,17 @@ def train(
     quick_eval_seed: int = QUICK_EVAL_SEED,
     progress: Callable[[int, int], None] | None = None,
     torch_threads: int | None = 1,
+    stream: str = "independent",
 ) -> TrainResult:
     """Train ``config`` with the DeepTraffic training protocol from ``seed``.
+
+    ``stream``: ``"independent"`` (default) derives the engine's ``Math.random`` state, the
+    learner's draws and the initialisation from ``np.random.SeedSequence(seed)``;
+    ``"original"`` (v1 only) is train.js's own randomness: ``Math.random := mulberry32(seed)``,
+    the weights drawn from it by convnetjs's Gaussian routine, then the engine and every learner
+    draw sharing that one stream (``js_learner.OriginalStream``). With ``dtype="float64"`` that
+    reproduces the original's training runs (learner_scores.json); dropout masks, if any, still
+    come from torch's generator.
 
     Every ``1/report_points`` of the ego decisions a ``CurvePoint`` is recorded — with a quick score
     (``quick_evaluate``: ``quick_eval_runs`` × ``quick_eval_frames`` custom-protocol runs of the
@@ -1077,7 +1104,12 @@ def train(
         raise ValueError("reporter: needs quick_eval=True (the reporter receives the quick score)")
     if report_points < 1:
         raise ValueError(f"report_points: must be ≥ 1, got {report_points}")
+    if stream not in ("independent", "original"):
+        raise ConfigError(f"stream: '{stream}' is not a stream; use independent or original")
+    if stream == "original" and config.ruleset != "v1":
+        raise ConfigError("stream: 'original' is train.js's shared Math.random stream, a v1 protocol; use ruleset v1")
     s_brain, s_agents, sim_state, s_eval = _seed_material(seed)
+    original = OriginalStream(seed) if stream == "original" else None
     old_threads = torch.get_num_threads()
     if torch_threads is not None:
         torch.set_num_threads(torch_threads)
@@ -1086,7 +1118,7 @@ def train(
         with torch.no_grad():
             return _train(
                 config, seed, reporter, report_points, quick_eval, quick_eval_runs, quick_eval_frames,
-                quick_eval_seed, progress, s_brain, s_agents, sim_state, s_eval,
+                quick_eval_seed, progress, s_brain, s_agents, sim_state, s_eval, original,
             )  # fmt: skip
     finally:
         if torch_threads is not None:
@@ -1108,10 +1140,11 @@ def _train(
     s_agents: np.random.SeedSequence,
     sim_state: int,
     s_eval: np.random.SeedSequence,
+    original: OriginalStream | None,
 ) -> TrainResult:
     t0 = time.perf_counter()
     c0 = time.process_time()
-    brain = DeepQLearner(config, s_brain)
+    brain = DeepQLearner(config, s_brain, stream=original)
     eval_rng = np.random.default_rng(s_eval)
     runs, frames_per_run = config.schedule
     curve: list[CurvePoint] = []
@@ -1127,6 +1160,9 @@ def _train(
     if config.ruleset == "v2":
         # training mode: brain.reset_seed and one reset_seed per agent copy existing at load
         sim.seed_training(sim_state, brain_draws=1 + min(config.other_agents, 9))
+    elif original is not None:
+        sim.seed_stream(original.state)  # train.js: the runs start right after the brain build
+        original.attach(sim.mrand)
     else:
         sim.seed_stream(sim_state)
     stepper = _Stepper(sim)
@@ -1262,6 +1298,7 @@ def _result(
         training_run_scores=scores,
         final_epsilon=brain.epsilon,
         experience_size_final=brain.n_exp,
+        final_gauss_cache=int(brain._stream.cache[0]) if brain._stream is not None else None,
         **status,
     )
 

@@ -75,18 +75,29 @@ def evaluate_official(
     seed: int | None = None,
     protocol: str | None = None,
     other_agents: int | None = None,
+    engine_load: bool = True,
+    gauss_cache: int = 0,
 ) -> Any:
     """Exact official-protocol evaluation of a trained net (after the JSON text round trip).
 
     ``seed`` is the protocol's ``Math.random`` seed (default: the protocol's own, 1 for v2-official
-    and 2000 for v1-original; learner_scores*.json use 100 + training seed).
+    and 2000 for v1-original; learner_scores*.json use 100 + training seed, and in v1 no engine-load
+    draws: ``engine_load=False``, see ``BrainPolicy.prepare``). ``gauss_cache``: convnetjs's Gaussian
+    cache flag before the brain build (0 in a fresh process; the learner_scores.json harness
+    evaluated in the training's process, so there it is the training's final flag).
     """
     from autotune.brain_policy import evaluate_net
     from autotune.netjson import dumps_net, loads_net
 
     net = loads_net(dumps_net(convnet))  # train.js saves with toJSON, evaluate.js loads with fromJSON
     return evaluate_net(
-        net, net_settings(config), protocol or official_protocol(config), seed=seed, other_agents=other_agents
+        net,
+        net_settings(config),
+        protocol or official_protocol(config),
+        seed=seed,
+        other_agents=other_agents,
+        engine_load=engine_load,
+        gauss_cache=gauss_cache,
     )
 
 

@@ -156,6 +156,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", help=f"a named reference config instead of --config ({', '.join(PRESETS)})")
     parser.add_argument("--set", action="append", metavar="KEY=VALUE", help="override one setting (repeatable)")
     parser.add_argument("--seed", type=int, default=0, help="trial seed (all randomness derives from it)")
+    parser.add_argument(
+        "--stream",
+        choices=["independent", "original"],
+        default="independent",
+        help="randomness: independent generators from --seed (default), or (v1) train.js's one "
+        "Math.random := mulberry32(seed) stream shared by engine and learner — with --set dtype=float64 "
+        "the original's own training run",
+    )
     parser.add_argument("--out", required=True, help="output directory (created)")
     parser.add_argument("--report-points", type=int, default=10, help="learning-curve points (default 10)")
     parser.add_argument("--no-quick-eval", action="store_true", help="no quick scores on the learning curve")
@@ -170,6 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         config = load_config(args)
         if args.report_points < 1:
             raise ConfigError(f"--report-points: must be ≥ 1, got {args.report_points}")
+        if args.stream == "original" and config.ruleset != "v1":
+            raise ConfigError("--stream original: train.js's shared stream is a v1 protocol; use --set ruleset=v1")
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
     except (ConfigError, OSError) as exc:
@@ -192,7 +202,15 @@ def main(argv: list[str] | None = None) -> int:
             bar.update(done - bar.n)
 
     (out / "config.json").write_text(
-        json.dumps({"config": config.to_mapping(), "settings": config.to_deepqlearn(), "seed": args.seed}, indent=1)
+        json.dumps(
+            {
+                "config": config.to_mapping(),
+                "settings": config.to_deepqlearn(),
+                "seed": args.seed,
+                "stream": args.stream,
+            },
+            indent=1,
+        )
         + "\n"
     )
     t0 = time.perf_counter()
@@ -202,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
         report_points=args.report_points,
         quick_eval=not args.no_quick_eval,
         progress=progress,
+        stream=args.stream,
     )
     if bar is not None:
         bar.close()

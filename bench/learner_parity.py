@@ -1,17 +1,24 @@
 """Learner parity with the original JS deepqlearn: network_basic, 8 seeds per engine.
 
-    python bench/learner_parity.py                     # v1 and v2, seeds 1…8, 2 processes
-    python bench/learner_parity.py --rulesets v2 --seeds 1 2 3 --jobs 1
+    python bench/learner_parity.py                                  # v1 and v2, seeds 1…8, 2 processes
+    python bench/learner_parity.py --rulesets v1 --dtype float64    # v1: the original's runs, decision for decision
+    python bench/learner_parity.py --rulesets v1 --learner exact    # the float64 numba replica (js_learner)
+    python bench/learner_parity.py --rulesets v1 --stream independent --seeds $(seq 1 48)
 
 Each seed s trains ``network_basic`` with the training protocol (v1: train.js; v2: the training web
-worker, otherAgents 0) and evaluates the trained net exactly as the reference data did
-(learner_scores.json / learner_scores_v2.json): ``Math.random := mulberry32(100 + s)``, a fresh
-brain built (its weight-init draws consumed), the trained weights loaded after the JSON round
-trip; v1: evaluate.js (10 × 100,000 frames, lexicographic ``sorted[5]``), v2: the official worker
-(500 × 2,000 frames, ``sorted[250]``). The learner cannot match the JS runs draw for draw (spec
-§10.6), so the comparison is statistical: the median over seeds of the per-seed scores against
-the original's (v1 70.41, v2 66.30), and the number of collapsed seeds (score < 60 mph; the
-original had 1 of 8 in v1 at 51.96, none in v2).
+worker, otherAgents 0) and evaluates the trained net as the reference data did (learner_scores.json /
+learner_scores_v2.json): ``Math.random := mulberry32(100 + s)``, a fresh brain built, the trained
+weights loaded after the JSON round trip; v1: evaluate.js's 10 × 100,000 frames (lexicographic
+``sorted[5]``) with the reference harness's seeding — no engine-load draws, the Gaussian cache flag
+inherited from the training (``--stream original``; 0 otherwise); v2: the official worker (500 × 2,000
+frames, ``sorted[250]``).
+
+Randomness (``--stream``, v1 only): ``original`` (the v1 default) is train.js's own ``mulberry32(s)``
+stream shared by the engine and the learner, so a float64 run is the original's run and the per-seed
+scores can be compared digit for digit (column ``same run``: the training-run scores equal the
+reference's); ``independent`` seeds everything from ``SeedSequence(s)`` and the comparison is
+statistical. The summary: the median over seeds against the original's (v1 70.41, v2 66.30) and the
+number of collapsed seeds (score < 60 mph; the original: 1 of 8 in v1 at 51.96, none in v2).
 
 Prints a table and one JSON line (prefix ``JSON``).
 """
@@ -29,6 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+REFERENCE_FILES = {"v1": "learner_scores.json", "v2": "learner_scores_v2.json"}
 REFERENCE = {
     "v1": {"medians": [71.32, 70.7, 69.14, 69.46, 70.92, 71.22, 70.13, 51.96], "median_of_medians": 70.415},
     "v2": {"medians": [66.15, 66.51, 67.04, 66.45, 65.81, 66.08, 66.04, 66.58], "median_of_medians": 66.30},
@@ -36,21 +44,48 @@ REFERENCE = {
 COLLAPSE_MPH = 60.0
 
 
-def run_one(args: tuple[str, int, dict]) -> dict:
-    ruleset, seed, overrides = args
+def _reference_runs(ruleset: str) -> dict[int, list[float]]:
+    """Sorted training-run scores of the reference's network_basic seeds (empty if the data is absent)."""
+    path = ROOT.parent / "shared" / "reference" / REFERENCE_FILES[ruleset]
+    if not path.exists():
+        return {}
+    data = json.loads(path.read_text())
+    return {
+        r["train"]["seed"]: r["train"]["training_run_mph_sorted"]
+        for r in data["runs"]
+        if r["config_file"] == "network_basic.json"
+    }
+
+
+def run_one(args: tuple[str, int, dict, str, str]) -> dict:
+    ruleset, seed, overrides, learner, stream = args
     import torch
 
     torch.set_num_threads(1)
     from autotune.config import preset
-    from autotune.learner import train
     from autotune.train import evaluate_official
 
     config = preset("network_basic", ruleset=ruleset, **overrides)
     t = time.perf_counter()
-    result = train(config, seed, quick_eval=False)
+    if learner == "exact":
+        from autotune.js_learner import train_exact
+
+        exact = train_exact(config, seed)
+        net, runs, cache = exact.convnet, exact.training_run_scores, exact.final_gauss_cache
+        it_s, diverged = None, False
+    else:
+        from autotune.learner import train
+
+        result = train(config, seed, quick_eval=False, stream=stream)
+        net, runs, cache = result.convnet(), result.training_run_scores, result.final_gauss_cache or 0
+        it_s, diverged = result.iterations_per_second, result.diverged
     train_s = time.perf_counter() - t
     t = time.perf_counter()
-    ev = evaluate_official(result.convnet(), config, seed=100 + seed)
+    reference_harness = ruleset == "v1"
+    ev = evaluate_official(
+        net, config, seed=100 + seed, engine_load=not reference_harness, gauss_cache=cache if reference_harness else 0
+    )
+    ref_runs = _reference_runs(ruleset).get(seed)
     return {
         "ruleset": ruleset,
         "seed": seed,
@@ -58,10 +93,11 @@ def run_one(args: tuple[str, int, dict]) -> dict:
         "score": ev.median_site,
         "mean": ev.mean,
         "train_seconds": train_s,
-        "it_per_s": result.iterations_per_second,
+        "it_per_s": it_s if it_s is not None else config.train_iterations / train_s,
         "eval_seconds": time.perf_counter() - t,
-        "diverged": result.diverged,
-        "training_run_scores": result.training_run_scores,
+        "diverged": diverged,
+        "training_run_scores": runs,
+        "same_run": None if ref_runs is None else sorted(runs) == ref_runs,
     }
 
 
@@ -71,12 +107,25 @@ def main() -> int:
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(1, 9)))
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a setting")
+    parser.add_argument("--learner", choices=["torch", "exact"], default="torch", help="torch (default) or the replica")
+    parser.add_argument("--stream", choices=["original", "independent"], default=None,
+                        help="v1 randomness (default original; v2 is always independent)")  # fmt: skip
+    parser.add_argument("--dtype", choices=["float32", "float64"], default=None, help="torch learner precision")
     args = parser.parse_args()
+    if args.learner == "exact" and "v2" in args.rulesets:
+        parser.error("--learner exact: the replica covers v1 only; add --rulesets v1")
     overrides = {}
     for item in args.set:
         key, value = item.split("=", 1)
         overrides[key] = json.loads(value) if value[:1].isdigit() or value[:1] in "-[{" else value
-    tasks = [(r, s, overrides) for r in args.rulesets for s in args.seeds]
+    if args.dtype:
+        overrides["dtype"] = args.dtype
+    stream_v1 = args.stream or "original"
+    tasks = [
+        (r, s, overrides, args.learner, stream_v1 if r == "v1" else "independent")
+        for r in args.rulesets
+        for s in args.seeds
+    ]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         rows = list(pool.map(run_one, tasks))
     summary = {}
@@ -94,11 +143,16 @@ def main() -> int:
             "reference_collapsed": sum(s < COLLAPSE_MPH for s in ref["medians"]),
             "difference": med - ref["median_of_medians"],
             "within_1_mph": abs(med - ref["median_of_medians"]) <= 1.0,
+            "same_runs": sum(bool(r["same_run"]) for r in mine),
+            "learner": args.learner,
+            "stream": stream_v1 if ruleset == "v1" else "independent",
+            "dtype": overrides.get("dtype", "float32"),
         }
-        print(f"{ruleset}: seeds {args.seeds}")
+        print(f"{ruleset}: seeds {args.seeds} ({args.learner} learner, {summary[ruleset]['stream']} stream)")
         for r in mine:
+            same = {True: "same run as the original", False: "different run", None: ""}[r["same_run"]]
             print(f"  seed {r['seed']}: {r['score']:.2f} mph (mean {r['mean']:.2f}; train {r['train_seconds']:.1f} s "
-                  f"at {r['it_per_s']:,.0f} it/s, eval {r['eval_seconds']:.1f} s)")  # fmt: skip
+                  f"at {r['it_per_s']:,.0f} it/s, eval {r['eval_seconds']:.1f} s) {same}")  # fmt: skip
         s = summary[ruleset]
         print(f"  median {s['median_of_seed_scores']:.2f} vs original {s['reference_median']:.2f} "
               f"(Δ {s['difference']:+.2f}, {'within' if s['within_1_mph'] else 'NOT within'} 1 mph); "

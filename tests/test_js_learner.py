@@ -155,3 +155,20 @@ def test_momentum_update_follows_convnetjs() -> None:
         np.testing.assert_allclose(w, w_ref, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-12)
     assert math.isfinite(replica.avg_loss_window)
+
+
+def test_train_cli_reproduces_the_original_run(tmp_path) -> None:
+    """``python -m autotune.train --stream original`` on default_v1 seed 2: the reference's training runs."""
+    import json
+
+    from autotune.train import main
+
+    out = tmp_path / "run"
+    argv = ["--preset", "default_v1", "--set", "ruleset=v1", "--set", "dtype=float64", "--seed", "2"]
+    assert main([*argv, "--stream", "original", "--no-quick-eval", "--no-eval", "--quiet", "--out", str(out)]) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert sorted(result["training_run_scores"]) == _reference("default_v1.json", 2)["train"]["training_run_mph_sorted"]
+    assert result["final_gauss_cache"] == 1
+    assert json.loads((out / "config.json").read_text())["stream"] == "original"
+    for name in ("net.json", "net.config.json", "net.js", "checkpoint.pt", "curve.csv"):
+        assert (out / name).is_file()

@@ -28,14 +28,20 @@ not the code:
   nesterov as convnetjs computes them. Implemented by hand with ``torch._foreach_*`` (not
   ``torch.optim``, whose momentum/decay conventions differ).
 * **Initialisation**: fc weights ~ N(0, √(1/fan_in)), biases ``bias_pref`` (0.1 for relu fc layers,
-  else 0) — from the run's own torch generator.
+  else 0) — from the run's own torch generator (original stream: convnetjs's polar-method
+  Gaussians from ``Math.random``).
 * Divergence: convnetjs lets Q-values run to NaN. Here training stops at the first non-finite
   greedy Q-value or sampled loss: ``learn`` raises ``DivergedError``; ``train`` records it
   (``TrainResult.diverged``, ``diverged_reason``) and returns the net as it was.
 
-Not reproduced: the JS learner's ``Math.random`` draws (Vol initialisation Gaussians, …) come from
-the engine's stream in the original; here the learner and the engine use independent seeded
-generators, so runs match the reference statistically, not draw for draw (spec §10.6).
+Randomness of the original (``train(…, stream="original")``, v1): train.js's learner draws from
+the engine's ``Math.random`` stream — the weight-initialisation Gaussians, and per decision the
+replacement slot, the replay indices, ``rf``, the random actions and the discarded Gaussians of
+every ``new Vol`` (spec §10.6). ``js_learner.OriginalStream`` supplies exactly those draws in that
+order, so in float64 this learner makes the original's decisions and ends its runs with the
+original's scores (learner_scores.json, ``tests/test_js_learner.py``). The default
+(``stream="independent"``) uses independent seeded generators and no Vol draws: ~2.5× faster,
+the same learner statistically.
 
 Training protocol (``train``; train.js / train_webworker.js, spec §9, v2 §12): one world,
 ``⌈numRuns⌉`` runs of ``⌈totalFrames/numRuns⌉`` frames (``config.schedule``), the brain persisting
@@ -45,14 +51,16 @@ warm-up), then uniformly random (the copies keep ``age = tw + 1``, so their ε i
 burnin > tw + 1; for burnin ≤ tw + 1 they act greedily with probability 1 − ε on a frozen snapshot,
 as the copies would). The simulator applies the shared-action rules itself.
 
-Randomness: everything derives from ``np.random.SeedSequence(seed)`` — a numpy generator for the
-learner's draws, one for the agents, a torch generator for initialisation and dropout masks, and
-the simulator's ``Math.random`` state; no global RNG is touched.
+Randomness (independent stream): everything derives from ``np.random.SeedSequence(seed)`` — a numpy
+generator for the learner's draws, one for the agents, a torch generator for initialisation and
+dropout masks, and the simulator's ``Math.random`` state; no global RNG is touched.
 
 Parity with the JS learner (``bench/learner_parity.py``; network_basic, seeds 1–8, evaluated like
-learner_scores*.json): v2 median 66.20 mph vs the original's 66.30, no collapsed seed (24 seeds:
-66.39, 2 collapsed); v1 median 68.75 vs 70.41 (56 seeds: 68.8 in float32, 69.1 in float64, an
-independent minimal numpy learner 69.6; about 1 in 25 seeds collapses near 52 mph, the original 1 of 8).
+learner_scores*.json): v1 with the original stream in float64: the same 8 runs as the original
+(median 70.41, 1 collapsed), in float32 the runs follow the original's for a while and then part
+(median 70.89, none collapsed); v2: median 66.20 vs the original's 66.30, no collapsed seed. The
+original itself (the replica over seeds 1–93) has a median of 69.4 with 6 of 93 seeds collapsed;
+the independent-stream learner gives 68.8 (float32) / 69.1 (float64) over 56 seeds.
 
 Speed: one decision = one simulator call + one ``learn`` call. The batch update is a hand-written
 forward/backward over preallocated buffers (``_Kernel``; the s₀ and s₁ halves of the batch go

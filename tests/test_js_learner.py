@@ -40,9 +40,12 @@ def _reference(config_file: str, seed: int) -> dict:
 
 
 CASES = [("default_v1", 1), ("default_v1", 2), ("network_basic", 1)]
+# strong_lr1e-3 diverges to NaN around decision 5,000 and keeps training on NaN, as convnetjs does;
+# its evaluation sees the NaN weights as 0 after the JSON round trip (spec §10.7)
+EXACT_CASES = [*CASES, ("strong_lr1e-3", 1)]
 
 
-@pytest.mark.parametrize(("name", "seed"), CASES)
+@pytest.mark.parametrize(("name", "seed"), EXACT_CASES)
 def test_exact_training_run_matches_the_original(name: str, seed: int) -> None:
     ref = _reference(f"{name}.json", seed)
     config = preset(name, ruleset="v1")
@@ -56,7 +59,10 @@ def test_exact_training_run_matches_the_original(name: str, seed: int) -> None:
     assert result.final_epsilon == t["final_epsilon"]
     assert result.avg_reward_window == t["avg_reward_window"]
     # the loss window differs from V8's in the last bits only (Math.log of the initial weights)
-    assert result.avg_loss_window == pytest.approx(t["avg_loss_window"], rel=1e-12)
+    if t["avg_loss_window"] is None:  # NaN in the original, null in its JSON
+        assert math.isnan(result.avg_loss_window)
+    else:
+        assert result.avg_loss_window == pytest.approx(t["avg_loss_window"], rel=1e-12)
     ev = evaluate_official(
         result.convnet, config, seed=ref["eval"]["seed"], engine_load=False, gauss_cache=result.final_gauss_cache
     )

@@ -1,18 +1,19 @@
-"""The original deepqlearn training run, replicated operation by operation (float64, numba, v1).
+"""The original deepqlearn training run, replicated operation by operation (float64, numba).
 
 ``autotune.learner`` is the fast learner: torch, float32, its own seeded generators. This module
-is its reference: the convnetjs ``deepqlearn`` brain and ``SGDTrainer`` exactly as the v1
-``train.js`` runs them (engine_spec.md §9, §10), sharing the engine's ``Math.random`` stream draw
-for draw, so that a training run here is the *same* run as the original's — same weights, same
-training-run scores, same count of random draws — and ``learner_scores.json`` can be checked to
-the digit rather than statistically. What makes that possible (spec §10.6):
+is its reference: the convnetjs ``deepqlearn`` brain and ``SGDTrainer`` exactly as the original
+harnesses run them (v1 ``train.js``: engine_spec.md §9, §10; v2 training worker: engine_spec_v2.md
+§12, §13), taking every learner draw from ``Math.random`` in the original's order, so that a
+training run here is the *same* run as the original's — same weights, same training-run scores,
+same count of random draws — and ``learner_scores*.json`` can be checked to the digit rather than
+statistically. What makes that possible (spec §10.6):
 
 * every ``new Vol(1, 1, n)`` draws ``n`` Gaussians (Marsaglia polar method, 2 uniforms per
   attempt, one global cached value) even when its values are overwritten at once; ``policy()``
   allocates one per call, and every training sample allocates one for s₀. Only the *count* of
   those draws and the cache flag matter, so they are skipped without computing logarithms
   (``brain_policy.gauss_skip``); the weight initialisation needs the values
-  (``_gauss``: ``u·√(−2 ln r / r)``, the cached ``v·√(…)`` next);
+  (``_init_weights``: ``u·√(−2 ln r / r)``, the cached ``v·√(…)`` next);
 * sums run in convnetjs's order with no fused multiply-add and no re-association: fc
   ``a = 0; a += x_d·w_id; a += b_i``; backward ``dx_d += w_id·g_i`` and ``dw_id += x_d·g_i`` per
   sample, over the batch in sample order; the update ``g = (l2·w + l1·sign(w) + dw)/B`` then
@@ -21,24 +22,30 @@ the digit rather than statistically. What makes that possible (spec §10.6):
   replacement slot ``⌊size·u⌋`` (memory full), then per sample ``⌊len·u⌋``, the s₀ Vol, the s₁
   ``policy()`` Vol; then ``rf``, and either ``⌊5u⌋`` or the greedy ``policy()`` Vol.
 
-Scope: v1 (the shared stream), fc layers with relu / tanh / sigmoid / no activation ending in the
-regression output, the sgd trainer with or without momentum — the templates of spec §10.8 and
-every ``learner_scores.json`` configuration. ``train_exact`` raises ``ConfigError`` naming the
-field for anything else. It is single-threaded and has no reporter: it is for verification
-(``tests/test_js_learner.py``, ``bench/learner_parity.py --exact``), not for search.
+In v1 the traffic draws from the same stream; in v2 ``Math.random`` only feeds the engine load,
+the training-mode seeds of the Park–Miller traffic generators and the learner (v2 §2, §12), and
+the warm-up action is 0 without a draw (v2 §13).
+
+Scope: v1 and v2 without other agents, fc layers with relu / tanh / sigmoid / no activation ending
+in the regression output, the sgd trainer with or without momentum — the templates of spec §10.8
+and every ``learner_scores*.json`` configuration. ``train_exact`` raises ``ConfigError`` naming
+the field for anything else. It is single-threaded and has no reporter: it is for verification
+(``tests/test_js_learner.py``, ``bench/learner_parity.py --learner exact``), not for search.
+``OriginalStream`` gives the torch learner the same draws (``learner.train(…, stream="original")``).
 
 Harness (learner_scores.json ``protocol.training``): ``Math.random := mulberry32(seed)``; the brain
-is built (weight draws); ``doEvalRun(⌈numRuns⌉, ⌈frames⌉)`` with learning on; its trailing
-``reset()`` (60 draws). **No engine-construction draws** come between the build and the first
-run: the harness's engine existed before ``Math.random`` was seeded. The recorded data decide
-this (with the 60 construction draws of evaluate.js no run matches; without them every training
-run, every draw count and every evaluation score of learner_scores.json does), and the same holds
-for its evaluations (``evaluate_net(…, engine_load=False)``).
+is built (weight draws); v1: ``doEvalRun(⌈numRuns⌉, ⌈frames⌉)`` with learning on, then its
+trailing ``reset()`` (60 draws). **No engine-construction draws** come between the build and the
+first v1 run: the harness's engine existed before ``Math.random`` was seeded. The recorded data
+decide this (with the 60 construction draws of evaluate.js no run matches; without them every
+training run, every draw count and every evaluation score of learner_scores.json does), and the
+same holds for its evaluations (``evaluate_net(…, engine_load=False)``), which also inherit the
+training's Gaussian cache flag (same process). v2: the engine load (20 draws), the training-mode
+seeding, the runs, the trailing ``reset()`` (20 draws).
 
 The platform's ``log`` / ``exp`` may differ from V8's in the last bit: the initial weights then
 differ by one ulp now and then (3 % of values), tanh/sigmoid nets drift at the 1e-13 level. For
-relu nets that has not changed a single decision (all 8 network_basic and both default_v1 seeds
-of learner_scores.json reproduce exactly).
+relu nets that has not changed a single decision (every learner_scores*.json run reproduces).
 """
 
 from __future__ import annotations
@@ -65,13 +72,13 @@ ACT_NONE, ACT_RELU, ACT_TANH, ACT_SIGMOID = range(4)
 _ACTS = {Relu: ACT_RELU, Tanh: ACT_TANH, Sigmoid: ACT_SIGMOID}
 
 # int64 hyperparameters / counters (``hp``)
-(H_TW, H_NS, H_D, H_WINDOW, H_EXP_SIZE, H_START, H_BATCH, H_BURNIN, H_TOTAL,
- H_AGE, H_FP, H_N_EXP, H_HEAD, H_CACHE, H_UPDATES, H_LOSS_N, H_REWARD_N, H_LOSS_I, H_REWARD_I) = range(19)  # fmt: skip
-N_HP = 19
+(H_TW, H_NS, H_D, H_WINDOW, H_EXP_SIZE, H_START, H_BATCH, H_BURNIN, H_TOTAL, H_AGE,
+ H_FP, H_N_EXP, H_HEAD, H_CACHE, H_UPDATES, H_LOSS_N, H_REWARD_N, H_LOSS_I, H_REWARD_I, H_V2) = range(20)  # fmt: skip
+N_HP = 20
 # float64 hyperparameters / state (``hf``)
 (F_GAMMA, F_LR, F_MOMENTUM, F_L2, F_L1, F_EPS_MIN, F_EPSILON, F_LOSS_SUM, F_REWARD_SUM) = range(9)  # fmt: skip
 N_HF = 9
-RESET_DRAWS = 60  # v1 reset(): 20 cars × 3 draws
+RESET_DRAWS = {"v1": 60, "v2": 20}  # Math.random draws of reset(): v1 20 cars × 3, v2 one per car construction
 WINDOW_SIZE = 1000  # cnnutil.Window(1000, 10): deepqlearn's average reward / loss windows
 WINDOW_MIN = 10
 _MUL_INV = pow(0x6D2B79F5, -1, 2**32)  # mulberry32 adds 0x6D2B79F5 per draw
@@ -138,15 +145,16 @@ def _vol(mr: np.ndarray, cache: np.ndarray, D: int) -> None:
 
 
 class OriginalStream:
-    """The v1 original's one ``Math.random`` stream as the torch learner's source of draws.
+    """The original's ``Math.random`` stream as the torch learner's source of draws.
 
-    In train.js the engine and the learner draw from the same ``mulberry32(seed)`` stream
-    (spec §10.6): the weight initialisation, the replacement slot, the replay indices, ``rf``, the
-    random actions — and the discarded Gaussians of every ``new Vol`` — interleaved with the
-    traffic's draws. ``autotune.learner.DeepQLearner(…, stream=OriginalStream(seed))`` takes every
-    draw from here in that order, so with ``dtype="float64"`` the torch learner follows the
-    original's training run decision for decision for as long as BLAS's summation order does not
-    flip a greedy choice (network_basic seeds 1–8: to the end of training). ``attach`` hands the
+    The original learner draws from ``Math.random := mulberry32(seed)`` (spec §10.6): the weight
+    initialisation, the replacement slot, the replay indices, ``rf``, the random actions — and the
+    discarded Gaussians of every ``new Vol`` — interleaved with the engine's draws (v1: the
+    traffic; v2: the load, the training-mode seeds and the car constructions of every reset).
+    ``autotune.learner.DeepQLearner(…, stream=OriginalStream(seed))`` takes every draw from here
+    in that order, so with ``dtype="float64"`` the torch learner follows the original's training
+    run decision for decision for as long as BLAS's summation order does not flip a greedy choice
+    (network_basic, seeds 1–8 of both engines: to the end of training). ``attach`` hands the
     state to the simulator's array once the engine exists, after the weights were drawn.
     """
 
@@ -382,6 +390,8 @@ def _learn(
         else:
             hp[H_CACHE] = gauss_skip(mr, 0, hp[H_CACHE], D)
             action, _v = _policy(lay, P, xin, Y)
+    elif hp[H_V2] != 0:
+        action = 0  # v2 warm-up: ⌊nextFloat()⌋·5 from the brain's own generator, no Math.random draw
     else:
         action = int(math.floor(mrand(mr, 0) * 5.0))
     for d in range(D):
@@ -483,12 +493,10 @@ class ExactTrainResult:
 
 
 def _check(config: TrainConfig) -> tuple[np.ndarray, int]:
-    if config.ruleset != "v1":
-        raise ConfigError("ruleset: the exact replica covers v1 (train.js, one shared Math.random stream); use v1")
     if config.method != "sgd":
         raise ConfigError(f"method: the exact replica implements convnetjs's sgd trainer, not '{config.method}'")
     if config.other_agents:
-        raise ConfigError("other_agents: v1 has no other agents; use 0")
+        raise ConfigError("other_agents: the exact replica trains without other agents; use 0")
     layers = config.expanded_layers
     rows: list[list[int]] = []
     off = 0
@@ -539,6 +547,7 @@ def train_exact(config: TrainConfig, seed: int) -> ExactTrainResult:
     hp[H_BURNIN], hp[H_TOTAL] = config.learning_steps_burnin, config.learning_steps_total
     hp[H_HEAD] = n - 1
     hp[H_CACHE] = int(cache[0] != 0.0)
+    hp[H_V2] = int(config.ruleset == "v2")
     hf = np.zeros(N_HF)
     hf[F_GAMMA], hf[F_LR], hf[F_MOMENTUM] = config.gamma, config.learning_rate, config.momentum
     hf[F_L2], hf[F_L1], hf[F_EPS_MIN], hf[F_EPSILON] = config.l2_decay, config.l1_decay, config.epsilon_min, 1.0
@@ -551,11 +560,14 @@ def train_exact(config: TrainConfig, seed: int) -> ExactTrainResult:
     )  # fmt: skip
     if runs > 0:
         sim = Simulator(config.engine_config, 1, frames, runs)
-        sim.seed_stream(int(mr[0]))  # no engine-load draws between the build and the runs (see the module doc)
+        if config.ruleset == "v2":  # engine load (20 draws), brain.reset_seed, r, t (spec v2 §12)
+            sim.seed_training(int(mr[0]), brain_draws=1)
+        else:  # no engine-load draws between the build and the runs (see the module doc)
+            sim.seed_stream(int(mr[0]))
         obs = np.zeros(ns)
         _run(sim.cars, sim.grid, sim.fs, sim.ints, sim.cfg, sim.mrand, obs, sim.scores, sim.ego_scores,
              sim.run_seeds, learn_args)  # fmt: skip
-        end_state = mulberry32_advance(int(sim.mrand[0]), RESET_DRAWS)  # doEvalRun's trailing reset()
+        end_state = mulberry32_advance(int(sim.mrand[0]), RESET_DRAWS[config.ruleset])  # doEvalRun's trailing reset()
         scores = sim.scores.reshape(-1).tolist()
     else:  # trainIterations 0: train.js skips doEvalRun
         end_state = int(mr[0])

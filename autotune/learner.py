@@ -1092,11 +1092,12 @@ def train(
 
     ``stream``: ``"independent"`` (default) derives the engine's ``Math.random`` state, the
     learner's draws and the initialisation from ``np.random.SeedSequence(seed)``;
-    ``"original"`` (v1 only) is train.js's own randomness: ``Math.random := mulberry32(seed)``,
-    the weights drawn from it by convnetjs's Gaussian routine, then the engine and every learner
-    draw sharing that one stream (``js_learner.OriginalStream``). With ``dtype="float64"`` that
-    reproduces the original's training runs (learner_scores.json); dropout masks, if any, still
-    come from torch's generator.
+    ``"original"`` is the original harness's randomness: ``Math.random := mulberry32(seed)``, the
+    weights drawn from it by convnetjs's Gaussian routine, then every learner draw from that one
+    stream (``js_learner.OriginalStream``) — in v1 (train.js) shared with the traffic, in v2 (the
+    training worker) after the engine load and the training-mode seeding, whose Park–Miller run
+    seeds it also provides. With ``dtype="float64"`` that reproduces the original's training runs
+    (learner_scores*.json); dropout masks, if any, still come from torch's generator.
 
     Every ``1/report_points`` of the ego decisions a ``CurvePoint`` is recorded — with a quick score
     (``quick_evaluate``: ``quick_eval_runs`` × ``quick_eval_frames`` custom-protocol runs of the
@@ -1114,8 +1115,6 @@ def train(
         raise ValueError(f"report_points: must be ≥ 1, got {report_points}")
     if stream not in ("independent", "original"):
         raise ConfigError(f"stream: '{stream}' is not a stream; use independent or original")
-    if stream == "original" and config.ruleset != "v1":
-        raise ConfigError("stream: 'original' is train.js's shared Math.random stream, a v1 protocol; use ruleset v1")
     s_brain, s_agents, sim_state, s_eval = _seed_material(seed)
     original = OriginalStream(seed) if stream == "original" else None
     old_threads = torch.get_num_threads()
@@ -1165,21 +1164,21 @@ def _train(
         return _result(config, seed, brain, curve, None, 0, (t0, c0), (eval_seconds, eval_cpu), result)
 
     sim = Simulator(config.engine_config, 1, frames_per_run, runs)
+    start_state = original.state if original is not None else sim_state
     if config.ruleset == "v2":
-        # training mode: brain.reset_seed and one reset_seed per agent copy existing at load
-        sim.seed_training(sim_state, brain_draws=1 + min(config.other_agents, 9))
-    elif original is not None:
-        sim.seed_stream(original.state)  # train.js: the runs start right after the brain build
-        original.attach(sim.mrand)
+        # engine load, then training mode: brain.reset_seed and one reset_seed per agent copy existing at load
+        sim.seed_training(start_state, brain_draws=1 + min(config.other_agents, 9))
     else:
-        sim.seed_stream(sim_state)
+        sim.seed_stream(start_state)  # train.js: the runs start right after the brain build
+    if original is not None:
+        original.attach(sim.mrand)
     stepper = _Stepper(sim)
     decisions_per_run = -(-frames_per_run // 30)
     total_decisions = runs * decisions_per_run
     total_frames = runs * frames_per_run
     marks = [max(1, round(total_decisions * (k + 1) / report_points)) for k in range(report_points)]
     progress_every = max(1, total_decisions // 100)
-    agents = _TrainingAgents(config, brain, s_agents) if config.other_agents > 0 else None
+    agents = _TrainingAgents(config, brain, s_agents, original) if config.other_agents > 0 else None
 
     learn = brain.learn
     step = stepper.step
@@ -1321,12 +1320,21 @@ class _TrainingAgents:
     on the network frozen at that moment, each with its own temporal window.
     """
 
-    def __init__(self, config: TrainConfig, brain: DeepQLearner, seed: np.random.SeedSequence) -> None:
+    def __init__(
+        self,
+        config: TrainConfig,
+        brain: DeepQLearner,
+        seed: np.random.SeedSequence,
+        stream: OriginalStream | None = None,
+    ) -> None:
         self.config = config
         self.brain = brain
         self.rng = np.random.default_rng(seed)
         self._u: list[float] = []
         self._ui = 0
+        self._stream = stream
+        if stream is not None:  # the copies draw from the same Math.random as everything else
+            self._uniform = stream.uniform  # type: ignore[method-assign]
         self.tw = config.temporal_window
         self.epsilon = js_epsilon(
             self.tw + 1, config.learning_steps_burnin, config.learning_steps_total, config.epsilon_min
@@ -1362,6 +1370,8 @@ class _TrainingAgents:
             self._hist = np.tile(brain._hist, (self.config.other_agents + 1, 1))
         hist = self._hist[car]  # type: ignore[index]
         x = np.concatenate([np.asarray(inputs, dtype=hist.dtype), hist])
+        if self._stream is not None:
+            self._stream.vol(self.config.net_inputs)
         h = x
         for op in self.frozen:
             h = op(h)

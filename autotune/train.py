@@ -160,8 +160,8 @@ def main(argv: list[str] | None = None) -> int:
         "--stream",
         choices=["independent", "original"],
         default="independent",
-        help="randomness: independent generators from --seed (default), or (v1) train.js's one "
-        "Math.random := mulberry32(seed) stream shared by engine and learner — with --set dtype=float64 "
+        help="randomness: independent generators from --seed (default), or the original harness's "
+        "Math.random := mulberry32(seed) stream for every learner draw — with --set dtype=float64 "
         "the original's own training run",
     )
     parser.add_argument("--out", required=True, help="output directory (created)")
@@ -178,8 +178,6 @@ def main(argv: list[str] | None = None) -> int:
         config = load_config(args)
         if args.report_points < 1:
             raise ConfigError(f"--report-points: must be ≥ 1, got {args.report_points}")
-        if args.stream == "original" and config.ruleset != "v1":
-            raise ConfigError("--stream original: train.js's shared stream is a v1 protocol; use --set ruleset=v1")
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
     except (ConfigError, OSError) as exc:

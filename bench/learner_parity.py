@@ -1,9 +1,9 @@
 """Learner parity with the original JS deepqlearn: network_basic, 8 seeds per engine.
 
     python bench/learner_parity.py                                  # v1 and v2, seeds 1…8, 2 processes
-    python bench/learner_parity.py --rulesets v1 --dtype float64    # v1: the original's runs, decision for decision
-    python bench/learner_parity.py --rulesets v1 --learner exact    # the float64 numba replica (js_learner)
-    python bench/learner_parity.py --rulesets v1 --stream independent --seeds $(seq 1 48)
+    python bench/learner_parity.py --dtype float64                  # the original's runs, decision for decision
+    python bench/learner_parity.py --learner exact                  # the float64 numba replica (js_learner)
+    python bench/learner_parity.py --stream independent --seeds $(seq 1 48)
 
 Each seed s trains ``network_basic`` with the training protocol (v1: train.js; v2: the training web
 worker, otherAgents 0) and evaluates the trained net as the reference data did (learner_scores.json /
@@ -13,12 +13,13 @@ weights loaded after the JSON round trip; v1: evaluate.js's 10 × 100,000 frames
 inherited from the training (``--stream original``; 0 otherwise); v2: the official worker (500 × 2,000
 frames, ``sorted[250]``).
 
-Randomness (``--stream``, v1 only): ``original`` (the v1 default) is train.js's own ``mulberry32(s)``
-stream shared by the engine and the learner, so a float64 run is the original's run and the per-seed
-scores can be compared digit for digit (column ``same run``: the training-run scores equal the
-reference's); ``independent`` seeds everything from ``SeedSequence(s)`` and the comparison is
-statistical. The summary: the median over seeds against the original's (v1 70.41, v2 66.30) and the
-number of collapsed seeds (score < 60 mph; the original: 1 of 8 in v1 at 51.96, none in v2).
+Randomness (``--stream``): ``original`` (default) is the original harness's ``mulberry32(s)`` stream
+for every learner draw (shared with the traffic in v1, feeding the training-mode seeds in v2), so a
+float64 run is the original's run and the per-seed scores can be compared digit for digit (``same
+run as the original``: the training-run scores equal the reference's); ``independent`` seeds
+everything from ``SeedSequence(s)`` and the comparison is statistical. The summary: the median over
+seeds against the original's (v1 70.41, v2 66.30) and the number of collapsed seeds (score < 60 mph;
+the original: 1 of 8 in v1 at 51.96, none in v2).
 
 Prints a table and one JSON line (prefix ``JSON``).
 """
@@ -108,24 +109,18 @@ def main() -> int:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a setting")
     parser.add_argument("--learner", choices=["torch", "exact"], default="torch", help="torch (default) or the replica")
-    parser.add_argument("--stream", choices=["original", "independent"], default=None,
-                        help="v1 randomness (default original; v2 is always independent)")  # fmt: skip
+    parser.add_argument("--stream", choices=["original", "independent"], default="original",
+                        help="randomness: original (default) or independent")  # fmt: skip
     parser.add_argument("--dtype", choices=["float32", "float64"], default=None, help="torch learner precision")
     args = parser.parse_args()
-    if args.learner == "exact" and "v2" in args.rulesets:
-        parser.error("--learner exact: the replica covers v1 only; add --rulesets v1")
     overrides = {}
     for item in args.set:
         key, value = item.split("=", 1)
         overrides[key] = json.loads(value) if value[:1].isdigit() or value[:1] in "-[{" else value
     if args.dtype:
         overrides["dtype"] = args.dtype
-    stream_v1 = args.stream or "original"
-    tasks = [
-        (r, s, overrides, args.learner, stream_v1 if r == "v1" else "independent")
-        for r in args.rulesets
-        for s in args.seeds
-    ]
+    stream = args.stream
+    tasks = [(r, s, overrides, args.learner, stream) for r in args.rulesets for s in args.seeds]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         rows = list(pool.map(run_one, tasks))
     summary = {}
@@ -145,7 +140,7 @@ def main() -> int:
             "within_1_mph": abs(med - ref["median_of_medians"]) <= 1.0,
             "same_runs": sum(bool(r["same_run"]) for r in mine),
             "learner": args.learner,
-            "stream": stream_v1 if ruleset == "v1" else "independent",
+            "stream": stream,
             "dtype": overrides.get("dtype", "float32"),
         }
         print(f"{ruleset}: seeds {args.seeds} ({args.learner} learner, {summary[ruleset]['stream']} stream)")

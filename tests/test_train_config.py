@@ -236,7 +236,7 @@ def test_study_configs_load():
         (["--preset", "nope"], "unknown preset key 'nope'"),
         (["--config", "/nonexistent/c.toml"], "not found"),
         ([], "give exactly one of --config"),
-        (["--preset", "network_basic", "--stream", "original"], "--stream original: train.js's shared stream"),
+        (["--preset", "network_basic", "--stream", "js"], "--stream: invalid choice"),
     ],
 )
 def test_cli_bad_input_exits_2(argv, needle, tmp_path, capsys):

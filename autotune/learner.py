@@ -34,12 +34,13 @@ not the code:
   greedy Q-value or sampled loss: ``learn`` raises ``DivergedError``; ``train`` records it
   (``TrainResult.diverged``, ``diverged_reason``) and returns the net as it was.
 
-Randomness of the original (``train(…, stream="original")``, v1): train.js's learner draws from
-the engine's ``Math.random`` stream — the weight-initialisation Gaussians, and per decision the
-replacement slot, the replay indices, ``rf``, the random actions and the discarded Gaussians of
-every ``new Vol`` (spec §10.6). ``js_learner.OriginalStream`` supplies exactly those draws in that
-order, so in float64 this learner makes the original's decisions and ends its runs with the
-original's scores (learner_scores.json, ``tests/test_js_learner.py``). The default
+Randomness of the original (``train(…, stream="original")``): the original learner draws from
+``Math.random`` (shared with v1's traffic; in v2 also feeding the training-mode seeds) — the
+weight-initialisation Gaussians, and per decision the replacement slot, the replay indices, ``rf``,
+the random actions and the discarded Gaussians of every ``new Vol`` (spec §10.6).
+``js_learner.OriginalStream`` supplies exactly those draws in that order, so in float64 this learner
+makes the original's decisions and ends its runs with the original's scores (learner_scores*.json,
+``tests/test_js_learner.py``). The default
 (``stream="independent"``) uses independent seeded generators and no Vol draws: ~2.5× faster,
 the same learner statistically.
 
@@ -56,9 +57,10 @@ generator for the learner's draws, one for the agents, a torch generator for ini
 dropout masks, and the simulator's ``Math.random`` state; no global RNG is touched.
 
 Parity with the JS learner (``bench/learner_parity.py``; network_basic, seeds 1–8, evaluated like
-learner_scores*.json): v1 with the original stream in float64: the same 8 runs as the original
-(median 70.41, 1 collapsed), in float32 the runs follow the original's for a while and then part
-(median 70.89, none collapsed); v2: median 66.20 vs the original's 66.30, no collapsed seed. The
+learner_scores*.json): with the original stream in float64, the same 8 runs as the original in
+both engines (v1 median 70.41, 1 collapsed; v2 66.30, none); v1 in float32 the runs follow the
+original's for a while and then part (median 70.89, none collapsed); independent stream, v2:
+median 66.20, no collapsed seed. The
 original itself (the replica over seeds 1–93) has a median of 69.4 with 6 of 93 seeds collapsed;
 the independent-stream learner gives 68.8 (float32) / 69.1 (float64) over 56 seeds.
 

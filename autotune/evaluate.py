@@ -2,7 +2,7 @@
 
     python -m autotune.evaluate --net NET.json [--config NET.config.json] [--ruleset v1|v2]
         [--protocol v2-official|v1-original|v1-distribution|custom] [--seed S] [--other-agents N]
-        [--runs R --frames F] [--threads T] [--json]
+        [--runs R --frames F] [--threads T] [--gauss-cache 0|1] [--no-engine-load] [--json]
 
 Defaults: config = ``<net>.config.json``; ruleset = the protocol's, else the net's own engine
 (v2 iff its config sets ``otherAgents``); protocol = that ruleset's official one (v2-official /
@@ -69,6 +69,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="convnetjs Gaussian cache flag before the brain build (0 = fresh process)",
     )
+    p.add_argument(
+        "--no-engine-load",
+        action="store_true",
+        help="v1-original: no engine-construction draws after the brain build (the learner_scores.json "
+        "harness; evaluate.js has them)",
+    )
     p.add_argument("--json", action="store_true", help="print the result as one JSON object on the last line")
     return p
 
@@ -100,6 +106,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         frames=args.frames,
         threads=args.threads,
         gauss_cache=args.gauss_cache,
+        engine_load=not args.no_engine_load,
     )
     out = result.to_json()
     out["net"] = str(args.net)

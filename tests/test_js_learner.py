@@ -184,3 +184,19 @@ def test_train_cli_reproduces_the_original_run(tmp_path) -> None:
     assert json.loads((out / "config.json").read_text())["stream"] == "original"
     for name in ("net.json", "net.config.json", "net.js", "checkpoint.pt", "curve.csv"):
         assert (out / name).is_file()
+
+
+def test_evaluate_cli_reproduces_the_reference_evaluation(tmp_path, capsys) -> None:
+    """``python -m autotune.evaluate … --no-engine-load`` = the learner_scores.json evaluation."""
+    import json
+
+    from autotune.evaluate import main
+    from autotune.netjson import write_net
+
+    config = preset("default_v1", ruleset="v1")
+    result = train_exact(config, 1)
+    write_net(tmp_path / "net.json", result.convnet, net_settings(config))
+    argv = ["--net", str(tmp_path / "net.json"), "--protocol", "v1-original", "--seed", "101"]
+    assert main([*argv, "--no-engine-load", "--gauss-cache", str(result.final_gauss_cache), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["scores"] == _reference("default_v1.json", 1)["eval"]["scores_run_order"]

@@ -2,6 +2,8 @@
 
     python bench/train_throughput.py                 # default_v1, network_basic, strong; 3 seeds each
     python bench/train_throughput.py --repeats 1 --configs network_basic --no-eval
+    python bench/train_throughput.py --stream original --dtype float64 --no-eval   # the original's own runs
+    python bench/train_throughput.py --learner exact --no-eval                      # the numba replica
 
 For each reference config (settings and JS wall times from learner_scores.json) the full training
 protocol runs ``--repeats`` times (seeds 1, 2, …; no quick evaluations, as train.js has none) in
@@ -53,19 +55,41 @@ def js_iterations_per_second() -> dict[str, float]:
     return out
 
 
-def bench_training(names: list[str], repeats: int, iterations: int | None) -> dict[str, dict]:
+def _exact(config, seed: int):  # noqa: ANN001, ANN202
+    """The replica timed like ``train`` (first call per config compiles: one untimed warm-up)."""
+    from autotune.js_learner import train_exact
+
+    t, c = time.perf_counter(), time.process_time()
+    r = train_exact(config, seed)
+    return r.forward_passes, time.perf_counter() - t, time.process_time() - c, r.updates, r.training_run_scores
+
+
+def bench_training(
+    names: list[str], repeats: int, iterations: int | None, learner: str, stream: str, dtype: str | None
+) -> dict[str, dict]:
     js = js_iterations_per_second()
     results = {}
     for name in names:
-        config = preset(name) if iterations is None else preset(name, train_iterations=iterations)
+        overrides = {"dtype": dtype} if dtype else {}
+        if iterations is not None:
+            overrides["train_iterations"] = iterations
+        config = preset(name, **overrides)
         wall, cpu, runs = [], [], []
+        if learner == "exact":
+            train_exact_warm = preset(name, train_iterations=100)
+            _exact(train_exact_warm, 1)
         for seed in range(1, repeats + 1):
-            r = train(config, seed, quick_eval=False)
-            wall.append(r.decisions / r.train_seconds)
-            cpu.append(r.decisions / r.train_cpu_seconds)
-            runs.append({"seed": seed, "seconds": r.train_seconds, "cpu_seconds": r.train_cpu_seconds,
-                         "updates": r.updates, "diverged": r.diverged,
-                         "training_run_scores": r.training_run_scores})  # fmt: skip
+            if learner == "exact":
+                decisions, seconds, cpu_s, updates, scores = _exact(config, seed)
+                diverged = False
+            else:
+                r = train(config, seed, quick_eval=False, stream=stream)
+                decisions, seconds, cpu_s, updates = r.decisions, r.train_seconds, r.train_cpu_seconds, r.updates
+                scores, diverged = r.training_run_scores, r.diverged
+            wall.append(decisions / seconds)
+            cpu.append(decisions / cpu_s)
+            runs.append({"seed": seed, "seconds": seconds, "cpu_seconds": cpu_s, "updates": updates,
+                         "diverged": diverged, "training_run_scores": scores})  # fmt: skip
         med_wall, med_cpu = statistics.median(wall), statistics.median(cpu)
         results[name] = {
             "ruleset": config.ruleset,
@@ -76,6 +100,9 @@ def bench_training(names: list[str], repeats: int, iterations: int | None) -> di
             "speedup_wall": med_wall / js[name],
             "speedup_cpu": med_cpu / js[name],
             "target_speedup": TARGETS.get(name),
+            "learner": learner,
+            "stream": stream,
+            "dtype": config.dtype,
             "runs": runs,
         }
     return results
@@ -104,8 +131,12 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--iterations", type=int, default=None, help="override trainIterations (default: the config's)")
     parser.add_argument("--no-eval", action="store_true")
+    parser.add_argument("--learner", choices=["torch", "exact"], default="torch", help="torch (default) or the replica")
+    parser.add_argument("--stream", choices=["independent", "original"], default="independent")
+    parser.add_argument("--dtype", choices=["float32", "float64"], default=None, help="torch learner precision")
     args = parser.parse_args()
-    training = bench_training(args.configs, args.repeats, args.iterations)
+    training = bench_training(args.configs, args.repeats, args.iterations, args.learner, args.stream, args.dtype)
+    print(f"learner {args.learner}, stream {args.stream}")
     print(f"{'config':<14} {'ruleset':<7} {'iterations':>10} {'it/s wall':>10} {'it/s cpu':>9} {'JS it/s':>8} "
           f"{'× wall':>7} {'× cpu':>6} {'target':>7}")  # fmt: skip
     for name, r in training.items():

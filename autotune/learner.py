@@ -41,7 +41,7 @@ the random actions and the discarded Gaussians of every ``new Vol`` (spec §10.6
 ``js_learner.OriginalStream`` supplies exactly those draws in that order, so in float64 this learner
 makes the original's decisions and ends its runs with the original's scores (learner_scores*.json,
 ``tests/test_js_learner.py``). The default
-(``stream="independent"``) uses independent seeded generators and no Vol draws: ~2.5× faster,
+(``stream="independent"``) uses independent seeded generators and no Vol draws: ~25 % faster,
 the same learner statistically.
 
 Training protocol (``train``; train.js / train_webworker.js, spec §9, v2 §12): one world,

@@ -190,8 +190,8 @@ def advance_one(
         _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
 
 
-@njit(error_model="numpy")
-def run_compiled(
+@njit(error_model="numpy", inline="always")
+def drive_world(
     cars: np.ndarray,
     grid: np.ndarray,
     fs: np.ndarray,
@@ -209,7 +209,8 @@ def run_compiled(
 ) -> None:
     """Run world ``w`` (already reset) through at most ``max_runs`` more runs, ``policy`` inline.
 
-    ``policy(inputs, lane, car, reward, mr, w, pstate) -> action`` (``sim.policies``).
+    ``policy(inputs, lane, car, reward, mr, w, pstate) -> action`` (``sim.policies``). Inlined
+    into its caller, so a caller naming a global policy compiles (and caches) a static call.
     """
     frames = cfg[K_FRAMES]
     done = 0
@@ -225,6 +226,27 @@ def run_compiled(
             frame_post(cars, grid, fs, ints, cfg, w, action)
         if not _finish_run(fs, ints, cfg, w, scores, ego):
             _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
+
+
+@njit(error_model="numpy")
+def run_compiled(
+    cars: np.ndarray,
+    grid: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    w: int,
+    policy,  # noqa: ANN001 - a numba-compiled policy function (see sim.policies)
+    pstate,  # noqa: ANN001 - that policy's own state (any numba-typed value)
+    obs: np.ndarray,
+    scores: np.ndarray,
+    ego: np.ndarray,
+    run_seeds: np.ndarray,
+    max_runs: int,
+) -> None:
+    """``drive_world`` for any compiled policy passed as an argument (not cacheable: compiled per process)."""
+    drive_world(cars, grid, fs, ints, mr, cfg, w, policy, pstate, obs, scores, ego, run_seeds, max_runs)
 
 
 @njit(cache=True, error_model="numpy")

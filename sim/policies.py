@@ -18,11 +18,12 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
+from sim import engine
 from sim.config import EngineConfig
 from sim.rng import mrand
-from sim.simulator import Observation
+from sim.simulator import Observation, Simulator
 
 NUM_ACTIONS = 5
 ACTION_NAMES = ("noop", "accelerate", "decelerate", "left", "right")
@@ -76,6 +77,29 @@ def _heuristic_a(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN
     return 1
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _builtin(inputs, lane, car, reward, mr, w, pstate):  # noqa: ANN001, ANN202
+    """Every built-in behind one static call: ``pstate = [lanes_side, patches_ahead, code]``."""
+    code = pstate[2]
+    if code == 4:
+        return _heuristic_a(inputs, lane, car, reward, mr, w, pstate)
+    if code == 3:
+        return _random(inputs, lane, car, reward, mr, w, pstate)
+    return code
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def run_builtin(cars, grid, fs, ints, mr, cfg, pstate, scores, ego, run_seeds, first, last, n_inputs, max_runs):  # noqa: ANN001, ANN201
+    """Worlds ``first … last − 1`` through at most ``max_runs`` more runs each, in parallel, policy inline.
+
+    Each world runs to its end without returning to Python, so its state stays in cache and the
+    threads never wait for each other between decisions.
+    """
+    for w in prange(first, last):
+        obs = np.empty(n_inputs)
+        engine.drive_world(cars, grid, fs, ints, mr, cfg, w, _builtin, pstate, obs, scores, ego, run_seeds, max_runs)
+
+
 def _gap_batch(inputs: np.ndarray, width: int, ahead: int, column: int) -> np.ndarray:
     free = inputs[:, column : width * ahead : width][:, ::-1] >= 1.0  # rows just-ahead first
     blocked = ~free
@@ -90,7 +114,7 @@ class BuiltinPolicy:
     name: str
     batch: Callable[[Observation, EngineConfig], np.ndarray]
     compiled: Callable[..., int]
-    needs: str = ""
+    code: int  # selects it inside ``_builtin``: 0–2 the constant action, 3 random, 4 heuristic_a
 
     def bind(self, config: EngineConfig) -> BoundPolicy:
         """The policy for one engine configuration (checks the input window it needs)."""
@@ -116,10 +140,32 @@ class BoundPolicy:
 
     @property
     def pstate(self) -> np.ndarray:
-        return np.array([self.config.lanes_side, self.config.patches_ahead], dtype=np.int64)
+        return np.array([self.config.lanes_side, self.config.patches_ahead, self.spec.code], dtype=np.int64)
 
     def __call__(self, obs: Observation) -> np.ndarray:
         return self.spec.batch(obs, self.config)
+
+    def run(self, sim: Simulator, first: int = 0, last: int | None = None, max_runs: int | None = None) -> None:
+        """Drive worlds ``first … last − 1`` of a seeded ``sim`` (at most ``max_runs`` more runs each).
+
+        The compiled, parallel path: same decisions and draws as calling the policy on batches.
+        """
+        if sim.config != self.config:
+            raise ValueError("run: the simulator's engine configuration differs from the policy's")
+        if not sim.seeded:
+            raise RuntimeError("seed the simulator before run()")
+        last = sim.n_worlds if last is None else last
+        run_builtin(
+            *sim.state_arrays,
+            self.pstate,
+            sim.scores,
+            sim.ego_scores,
+            sim.run_seeds,
+            first,
+            last,
+            self.config.num_inputs,
+            sim.runs_per_world if max_runs is None else max_runs,
+        )
 
 
 def _heuristic_batch(obs: Observation, config: EngineConfig) -> np.ndarray:
@@ -147,9 +193,9 @@ def _random_batch(obs: Observation, config: EngineConfig) -> np.ndarray:
 
 
 BUILTINS: dict[str, BuiltinPolicy] = {
-    "noop": BuiltinPolicy("noop", _constant(0), _noop),
-    "accelerate": BuiltinPolicy("accelerate", _constant(1), _accelerate),
-    "decelerate": BuiltinPolicy("decelerate", _constant(2), _decelerate),
-    "random": BuiltinPolicy("random", _random_batch, _random),
-    "heuristic_a": BuiltinPolicy("heuristic_a", _heuristic_batch, _heuristic_a),
+    "noop": BuiltinPolicy("noop", _constant(0), _noop, 0),
+    "accelerate": BuiltinPolicy("accelerate", _constant(1), _accelerate, 1),
+    "decelerate": BuiltinPolicy("decelerate", _constant(2), _decelerate, 2),
+    "random": BuiltinPolicy("random", _random_batch, _random, 3),
+    "heuristic_a": BuiltinPolicy("heuristic_a", _heuristic_batch, _heuristic_a, 4),
 }

@@ -133,6 +133,15 @@ class Simulator:
         self._seeded = False
         self._parallel = w >= 16  # below that, waking the thread pool costs more than it saves
 
+    @property
+    def seeded(self) -> bool:
+        return self._seeded
+
+    @property
+    def state_arrays(self) -> tuple[np.ndarray, ...]:
+        """``(cars, grid, fs, ints, mrand, cfg)``: the arguments every compiled driver starts with."""
+        return self._advance_args[:6]
+
     # -- seeding -------------------------------------------------------------------------
     def _arrays(self) -> tuple[np.ndarray, ...]:
         return self.cars, self.fs, self.ints, self.mrand, self.cfg
@@ -280,7 +289,7 @@ class Simulator:
             raise RuntimeError("seed the simulator before run_compiled()")
         obs = np.zeros(self.config.num_inputs)
         engine.run_compiled(
-            *self._advance_args[:6],  # cars, grid, fs, ints, mrand, cfg
+            *self.state_arrays,
             0,
             policy,
             pstate,

@@ -58,7 +58,7 @@ from autotune.netjson import NetSettings, validate
 from autotune.netspec import NUM_ACTIONS, ConvNet
 from sim import engine
 from sim.config import ConfigError, EngineConfig
-from sim.layout import CB, F_LAST_REWARD, I_DONE, I_FRAME, I_RUNS_DONE, K_FRAMES
+from sim.layout import I_DONE, I_RUNS_DONE
 from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, _resolve, evaluate
 from sim.rng import mrand, mulberry32_advance
 from sim.simulator import Simulator
@@ -198,25 +198,12 @@ def _decide_rows(inputs, cars, worlds, mr, pstate, out):  # noqa: ANN001, ANN202
 
 @njit(cache=True, error_model="numpy")
 def run_brain(cars, grid, fs, ints, mr, cfg, w, pstate, obs, scores, ego, run_seeds, max_runs):  # noqa: ANN001, ANN201
-    """``sim.engine.run_compiled`` with ``brain_policy`` bound statically, so that numba can cache it.
+    """``sim.engine.drive_world`` with ``brain_policy`` bound statically, so that numba can cache it.
 
     (A function passed as an argument cannot be cached; compiling the generic driver costs ~10 s
-    per process.) Same loop: world ``w`` (already reset), at most ``max_runs`` more runs.
+    per process.) World ``w`` (already reset), at most ``max_runs`` more runs.
     """
-    frames = cfg[K_FRAMES]
-    done = 0
-    while ints[w, I_DONE] == 0 and done < max_runs:
-        done += 1
-        for _ in range(frames - ints[w, I_FRAME]):
-            car = engine.frame_pre(cars, grid, fs, ints, mr, cfg, w)
-            action = -1
-            if car >= 0:
-                engine.observe(cars, grid, cfg, w, car, obs)
-                reward = fs[w, F_LAST_REWARD] if car == 0 else math.nan
-                action = brain_policy(obs, int(cars[w, CB, car]), car, reward, mr, w, pstate)
-            engine.frame_post(cars, grid, fs, ints, cfg, w, action)
-        if not engine._finish_run(fs, ints, cfg, w, scores, ego):
-            engine._next_run(cars, fs, ints, mr, cfg, w, run_seeds)
+    engine.drive_world(cars, grid, fs, ints, mr, cfg, w, brain_policy, pstate, obs, scores, ego, run_seeds, max_runs)
 
 
 def build_gaussians(net: ConvNet) -> int:

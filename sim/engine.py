@@ -6,9 +6,11 @@ there is no second, slower copy of the rules:
 * ``advance_batch`` — many worlds in parallel (``prange``): each world runs frames until one of
   its cars must decide, writes that car's observation and stops, so a Python policy can answer
   all pending decisions of all worlds in one call. Runs end and restart (``reset()``) inside.
-* ``run_compiled`` — one world, with a compiled policy called inside the loop: the official
+* ``drive_world`` — one world through whole runs with a compiled policy called inside the loop
+  (inlined into its caller, so a caller naming a global policy is cached): the official
   protocols are sequential by nature (v2 runs are coupled through ``reset()``, v1-original is one
-  random stream), so they need one fast world rather than many.
+  random stream), so they need one fast world rather than many; ``sim.policies.run_builtin``
+  runs it over many worlds in parallel, and ``run_compiled`` takes any policy as an argument.
 
 A run's score is ``⌊(sum/frames)·2000⌋/100`` (v1 §9, v2 §11): mean mph truncated to 2 decimals.
 """

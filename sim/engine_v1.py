@@ -29,7 +29,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.grid import draw_car, grid_get
+from sim.grid import clear_grid, draw_car, grid_get
 from sim.layout import (
     CA,
     CB,
@@ -48,8 +48,6 @@ from sim.layout import (
     K_BEHIND,
     K_LANES_SIDE,
     N_CARS,
-    N_LANES,
-    N_ROWS,
 )
 from sim.rng import mrand
 from sim.rules import apply_action, move, safety_factor, spawn_lane, try_lane_change
@@ -88,7 +86,7 @@ def reset_v1(cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray,
 def frame_pre_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, w: int) -> int:
     """Steps 1–7 of a frame; returns 0 when the ego must decide now, else −1."""
     g = grid[w]
-    g.reshape(N_LANES * N_ROWS)[:] = FREE
+    clear_grid(g, FREE)
     camera = fs[w, F_CAMERA]
     for i in range(N_CARS):
         move(cars, w, i, camera)
@@ -98,7 +96,7 @@ def frame_pre_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.nd
         if cars[w, CY, i] - 68.0 > 700.0:
             cars[w, CY, i] = -34.0
             _spawn(cars, mr, w, i)
-        draw_car(g, cars[w, CX, i], cars[w, CY, i], cars[w, CC, i] * cars[w, CA, i])
+        draw_car(g, cars[w, CX, i], cars[w, CY, i], cars[w, CB, i], cars[w, CC, i] * cars[w, CA, i])
     fs[w, F_CAMERA] = 1.5 - (cars[w, CY, 0] - 525.0)
     for i in range(N_CARS):
         c = safety_factor(g, cars, w, i, FREE)
@@ -108,7 +106,7 @@ def frame_pre_v1(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.nd
                 direction = -1.0 if 0.5 < mrand(mr, w) else 1.0
                 try_lane_change(g, cars, w, i, direction, FREE)
     c0a0 = cars[w, CC, 0] * cars[w, CA, 0]
-    draw_car(g, cars[w, CX, 0], cars[w, CY, 0], (10.0 * cars[w, CC, 0]) * cars[w, CA, 0])
+    draw_car(g, cars[w, CX, 0], cars[w, CY, 0], cars[w, CB, 0], (10.0 * cars[w, CC, 0]) * cars[w, CA, 0])
     fs[w, F_REWARD_ACC] = fs[w, F_REWARD_ACC] + c0a0
     if ints[w, I_FRAME] % DECISION_PERIOD == 0:
         fs[w, F_LAST_REWARD] = (fs[w, F_REWARD_ACC] - 60.0) / 20.0

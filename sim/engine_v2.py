@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.grid import draw_car, grid_get, js_max
+from sim.grid import clear_grid, draw_car, grid_get, js_max
 from sim.layout import (
     CA,
     CB,
@@ -182,7 +182,7 @@ def _agent_deciding(frame: int, n_agents: int) -> int:
 def _ego_redraw_and_reward(cars: np.ndarray, g: np.ndarray, fs: np.ndarray, w: int) -> None:
     """Steps 7 and 9: redraw the ego with its new ``c`` and accumulate the reward."""
     c0a0 = cars[w, CC, 0] * cars[w, CA, 0]
-    draw_car(g, cars[w, CX, 0], cars[w, CY, 0], c0a0)
+    draw_car(g, cars[w, CX, 0], cars[w, CY, 0], cars[w, CB, 0], c0a0)
     fs[w, F_REWARD_ACC] = fs[w, F_REWARD_ACC] + c0a0
 
 
@@ -191,7 +191,7 @@ def frame_pre_v2(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.nd
     """Steps 2–5 (and 7–9 unless an agent decides); returns the deciding car or −1."""
     n = cfg[K_AGENTS]
     g = grid[w]
-    g.reshape(N_LANES * N_ROWS)[:] = FREE
+    clear_grid(g, FREE)
     camera = fs[w, F_CAMERA]
     for i in range(N_CARS):
         move(cars, w, i, camera)
@@ -201,7 +201,7 @@ def frame_pre_v2(cars: np.ndarray, grid: np.ndarray, fs: np.ndarray, ints: np.nd
         if cars[w, CY, i] - 68.0 > 700.0:
             cars[w, CY, i] = -34.0
             _spawn(cars, ints, w, i, i <= n)
-        draw_car(g, cars[w, CX, i], cars[w, CY, i], cars[w, CC, i] * cars[w, CA, i])
+        draw_car(g, cars[w, CX, i], cars[w, CY, i], cars[w, CB, i], cars[w, CC, i] * cars[w, CA, i])
     fs[w, F_CAMERA] = 1.5 - (cars[w, CY, 0] - 525.0)
     for i in range(N_CARS):
         c = safety_factor(g, cars, w, i, FREE)

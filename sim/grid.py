@@ -15,6 +15,10 @@ row quotient of the car — ``(y + oy)/10`` for drawing, ``(y − 10k)/10`` for 
 is ``⌊y/10⌋`` plus an integer, exactly (rounding errors are ~1e-13), so one multiplication
 serves all eleven; near a boundary each quotient is computed in its exact form.
 
+A settled car (``x = 20ℓ + 4`` exactly, the usual case) covers lane ℓ alone and its safety
+column is ℓ: ``(x + ox)/20`` is ℓ + 0.2, ℓ + 0.7 or ℓ + 0.575, far from any integer, so those
+divisions are skipped.
+
 ``floor_div`` computes ``⌊fl(s/d)⌋`` — the floor of the correctly rounded quotient, as JS does —
 with a multiplication, and falls back to the real division only within 1e-7 of a boundary, where
 the two could differ. The hot loop therefore needs almost no divisions and stays bit-exact.
@@ -85,7 +89,15 @@ def grid_get(g: np.ndarray, lane: float, row: float, default: float) -> float:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def draw_car(g: np.ndarray, x: float, y: float, value: float) -> None:
+def clear_grid(g: np.ndarray, value: float) -> None:
+    """Set every cell (a plain loop: ``reshape(-1)[:]`` calls a runtime helper every frame)."""
+    for lane in range(N_LANES):
+        for row in range(N_ROWS):
+            g[lane, row] = value
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def draw_car(g: np.ndarray, x: float, y: float, lane: float, value: float) -> None:
     """Write ``value`` into the car's footprint (one lane when settled, two while changing)."""
     base = row_base(y)
     if base == base:
@@ -98,8 +110,12 @@ def draw_car(g: np.ndarray, x: float, y: float, value: float) -> None:
         return
     r0 = int(max(first, 0.0))
     r1 = int(min(last, N_ROWS - 1.0))
-    l0 = floor_div(x, 20.0, 0.05)
-    l1 = floor_div(x + 10.0, 20.0, 0.05)
+    if x == 20.0 * lane + 4.0:  # settled: x/20 = ℓ + 0.2 and (x + 10)/20 = ℓ + 0.7, both floor to ℓ
+        l0 = lane
+        l1 = lane
+    else:
+        l0 = floor_div(x, 20.0, 0.05)
+        l1 = floor_div(x + 10.0, 20.0, 0.05)
     if l0 >= 0.0 and l0 < N_LANES:
         li = int(l0)
         for r in range(r0, r1 + 1):

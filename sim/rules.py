@@ -48,7 +48,8 @@ def safety_factor(g: np.ndarray, cars: np.ndarray, w: int, i: int, free: float) 
     x = cars[w, CX, i]
     y = cars[w, CY, i]
     a = cars[w, CA, i]
-    col = floor_div(x + 7.5, 20.0, 0.05)
+    lane = cars[w, CB, i]
+    col = lane if x == 20.0 * lane + 4.0 else floor_div(x + 7.5, 20.0, 0.05)  # settled: see sim.grid
     base = row_base(y)
     v = 2.0
     if base >= 4.0 and base <= N_ROWS and col >= 0.0 and col < N_LANES:

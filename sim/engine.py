@@ -230,25 +230,9 @@ def drive_world(
             _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
 
 
-@njit(error_model="numpy")
-def run_compiled(
-    cars: np.ndarray,
-    grid: np.ndarray,
-    fs: np.ndarray,
-    ints: np.ndarray,
-    mr: np.ndarray,
-    cfg: np.ndarray,
-    w: int,
-    policy,  # noqa: ANN001 - a numba-compiled policy function (see sim.policies)
-    pstate,  # noqa: ANN001 - that policy's own state (any numba-typed value)
-    obs: np.ndarray,
-    scores: np.ndarray,
-    ego: np.ndarray,
-    run_seeds: np.ndarray,
-    max_runs: int,
-) -> None:
-    """``drive_world`` for any compiled policy passed as an argument (not cacheable: compiled per process)."""
-    drive_world(cars, grid, fs, ints, mr, cfg, w, policy, pstate, obs, scores, ego, run_seeds, max_runs)
+# ``drive_world`` as a function of its own, for any compiled policy passed as an argument: a
+# function-typed argument makes it uncacheable, so it compiles once per process and policy.
+run_compiled = njit(error_model="numpy")(drive_world.py_func)
 
 
 @njit(cache=True, error_model="numpy")

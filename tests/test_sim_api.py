@@ -131,3 +131,22 @@ def test_compiled_builtin_refuses_a_foreign_or_unseeded_simulator():
         policy.run(Simulator(EngineConfig(ruleset="v2"), 1, 10))
     with pytest.raises(RuntimeError, match="seed the simulator"):
         policy.run(Simulator(EngineConfig(ruleset="v1"), 1, 10))
+
+
+def test_any_policy_with_a_compiled_twin_drives_the_sequential_protocols():
+    """A user policy carrying ``compiled``/``pstate`` (not a built-in) goes through ``run_compiled``."""
+    config = EngineConfig(ruleset="v2", other_agents=3, lanes_side=1, patches_ahead=10)
+    bound = BUILTINS["heuristic_a"].bind(config)
+
+    class Twin:
+        compiled = staticmethod(bound.compiled)
+        pstate = bound.pstate
+        stateful = False
+
+        def __call__(self, obs):  # noqa: ANN001, ANN204
+            raise AssertionError("the sequential protocol must call the compiled twin")
+
+    want = evaluate(config, bound, "v2-official", runs=4)
+    got = evaluate(config, Twin(), "v2-official", runs=4)
+    assert got.scores == want.scores
+    assert got.ego_scores == want.ego_scores

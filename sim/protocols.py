@@ -195,17 +195,27 @@ def evaluate(
     compiled = getattr(policy, "compiled", None)
     memoryless = not getattr(policy, "stateful", compiled is None)
     builtin = isinstance(policy, BoundPolicy)
-    if builtin:
-        _warm_up(policy)
-    start = time.perf_counter()
-    total = runs * frames
+    sequential = proto.sequential or (protocol == "v1-distribution" and not memoryless)
 
-    if proto.sequential or (protocol == "v1-distribution" and not memoryless):
+    def make_sim(runs: int, frames: int) -> Simulator:
+        if not sequential:
+            sim = Simulator(config, runs, frames, 1)
+            sim.seed_independent(seed)
+            return sim
         sim = Simulator(config, 1, frames, runs)
         if protocol == "v1-distribution":
             sim.seed_per_run([seed + i for i in range(runs)])
         else:
             sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
+        return sim
+
+    if builtin:  # load (or compile) every compiled function on the path first: timings measure simulation
+        policy.run(make_sim(1, 1))
+    start = time.perf_counter()
+    total = runs * frames
+    sim = make_sim(runs, frames)
+
+    if sequential:
         if builtin:
             chunk = max(1, 200_000 // frames)
             while not sim.done:
@@ -222,8 +232,6 @@ def evaluate(
         else:
             _drive(sim, policy, progress, total)
     else:
-        sim = Simulator(config, runs, frames, 1)
-        sim.seed_independent(seed)
         if builtin:
             chunk = max(64, 4_000_000 // frames)  # worlds per call: a progress tick every ~4M frames
             for first in range(0, runs, chunk):
@@ -249,13 +257,6 @@ def evaluate(
         wall_seconds=wall,
         official_size=(runs == proto.runs and frames == proto.frames),
     )
-
-
-def _warm_up(policy: BoundPolicy) -> None:
-    """Load (or compile) the compiled driver before the clock starts: timings measure simulation."""
-    sim = Simulator(policy.config, 1, 1)
-    sim.seed_independent(0)
-    policy.run(sim)
 
 
 def _drive(sim: Simulator, policy: Callable[[Observation], Any], progress: ProgressFn | None, total: int) -> None:

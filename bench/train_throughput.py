@@ -102,7 +102,7 @@ def bench_training(
             "target_speedup": TARGETS.get(name),
             "learner": learner,
             "stream": stream,
-            "dtype": config.dtype,
+            "dtype": "float64" if learner == "exact" else config.dtype,
             "runs": runs,
         }
     return results
@@ -135,6 +135,10 @@ def main() -> int:
     parser.add_argument("--stream", choices=["independent", "original"], default="independent")
     parser.add_argument("--dtype", choices=["float32", "float64"], default=None, help="torch learner precision")
     args = parser.parse_args()
+    if args.learner == "exact":
+        if args.stream == "independent" and "--stream" in sys.argv:
+            parser.error("--learner exact always draws from the original stream; drop --stream independent")
+        args.stream = "original"  # the replica has no other stream
     training = bench_training(args.configs, args.repeats, args.iterations, args.learner, args.stream, args.dtype)
     print(f"learner {args.learner}, stream {args.stream}")
     print(f"{'config':<14} {'ruleset':<7} {'iterations':>10} {'it/s wall':>10} {'it/s cpu':>9} {'JS it/s':>8} "

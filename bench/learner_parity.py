@@ -33,12 +33,13 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 REFERENCE_FILES = {"v1": "learner_scores.json", "v2": "learner_scores_v2.json"}
-REFERENCE = {
+REFERENCE: dict[str, dict[str, Any]] = {
     "v1": {"medians": [71.32, 70.7, 69.14, 69.46, 70.92, 71.22, 70.13, 51.96], "median_of_medians": 70.415},
     "v2": {"medians": [66.15, 66.51, 67.04, 66.45, 65.81, 66.08, 66.04, 66.58], "median_of_medians": 66.30},
 }

@@ -70,7 +70,7 @@ def bench_training(
     js = js_iterations_per_second()
     results = {}
     for name in names:
-        overrides = {"dtype": dtype} if dtype else {}
+        overrides: dict[str, object] = {"dtype": dtype} if dtype else {}
         if iterations is not None:
             overrides["train_iterations"] = iterations
         config = preset(name, **overrides)

@@ -194,7 +194,7 @@ def evaluate(
     name = policy_name or getattr(policy, "name", None) or getattr(policy, "__name__", type(policy).__name__)
     compiled = getattr(policy, "compiled", None)
     memoryless = not getattr(policy, "stateful", compiled is None)
-    builtin = isinstance(policy, BoundPolicy)
+    builtin = policy if isinstance(policy, BoundPolicy) else None  # runs entirely compiled
     sequential = proto.sequential or (protocol == "v1-distribution" and not memoryless)
 
     def make_sim(runs: int, frames: int) -> Simulator:
@@ -209,17 +209,17 @@ def evaluate(
             sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
         return sim
 
-    if builtin:  # load (or compile) every compiled function on the path first: timings measure simulation
-        policy.run(make_sim(1, 1))
+    if builtin is not None:  # load (or compile) every compiled function on the path first: timings measure simulation
+        builtin.run(make_sim(1, 1))
     start = time.perf_counter()
     total = runs * frames
     sim = make_sim(runs, frames)
 
     if sequential:
-        if builtin:
+        if builtin is not None:
             chunk = max(1, 200_000 // frames)
             while not sim.done:
-                policy.run(sim, max_runs=chunk)
+                builtin.run(sim, max_runs=chunk)
                 if progress:
                     progress(int(sim.ints[0, I_RUNS_DONE]) * frames, total)
         elif compiled is not None:
@@ -232,10 +232,10 @@ def evaluate(
         else:
             _drive(sim, policy, progress, total)
     else:
-        if builtin:
+        if builtin is not None:
             chunk = max(64, 4_000_000 // frames)  # worlds per call: a progress tick every ~4M frames
             for first in range(0, runs, chunk):
-                policy.run(sim, first, min(runs, first + chunk))
+                builtin.run(sim, first, min(runs, first + chunk))
                 if progress:
                     progress(min(runs, first + chunk) * frames, total)
         else:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,7 +25,7 @@ from sim.simulator import Simulator
 
 
 def tiny(**kw) -> TrainConfig:
-    base = dict(
+    base: dict[str, Any] = dict(
         lanes_side=0, patches_ahead=2, temporal_window=0, layers="fc:3:relu", batch_size=4,
         experience_size=50, start_learn_threshold=49, learning_steps_total=30, learning_steps_burnin=10,
     )  # fmt: skip
@@ -404,7 +405,7 @@ def test_bogus_first_reward_and_transition_across_reset(ruleset):
 
 
 def _small_training_config(**kw) -> TrainConfig:
-    base = dict(
+    base: dict[str, Any] = dict(
         ruleset="v2", lanes_side=1, patches_ahead=4, temporal_window=0, layers="fc:4:relu", train_iterations=400,
         experience_size=200, start_learn_threshold=50, learning_steps_total=300, learning_steps_burnin=50, batch_size=8,
     )  # fmt: skip

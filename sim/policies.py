@@ -155,6 +155,10 @@ class BoundPolicy:
         if not sim.seeded:
             raise RuntimeError("seed the simulator before run()")
         last = sim.n_worlds if last is None else last
+        if not 0 <= first <= last <= sim.n_worlds:  # the compiled loop does not bounds-check
+            raise ValueError(f"run: need 0 ≤ first ≤ last ≤ n_worlds = {sim.n_worlds}, got first={first}, last={last}")
+        if max_runs is not None and max_runs < 1:
+            raise ValueError(f"run: max_runs must be ≥ 1, got {max_runs}")
         run_builtin(
             *sim.state_arrays,
             self.pstate,

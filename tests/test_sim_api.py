@@ -125,12 +125,20 @@ def test_compiled_builtin_matches_python_batches(name, ruleset, agents):
     np.testing.assert_array_equal(compiled.cars, stepped.cars)
 
 
-def test_compiled_builtin_refuses_a_foreign_or_unseeded_simulator():
+def test_compiled_builtin_refuses_bad_arguments():
     policy = BUILTINS["noop"].bind(EngineConfig(ruleset="v1"))
     with pytest.raises(ValueError, match="configuration differs"):
         policy.run(Simulator(EngineConfig(ruleset="v2"), 1, 10))
     with pytest.raises(RuntimeError, match="seed the simulator"):
         policy.run(Simulator(EngineConfig(ruleset="v1"), 1, 10))
+    sim = Simulator(EngineConfig(ruleset="v1"), 4, 10)
+    sim.seed_independent(0)
+    for first, last in ((0, 5), (-1, 2), (3, 2)):
+        with pytest.raises(ValueError, match="first ≤ last ≤ n_worlds = 4"):
+            policy.run(sim, first, last)
+    with pytest.raises(ValueError, match="max_runs must be ≥ 1"):
+        policy.run(sim, max_runs=0)
+    assert np.isnan(sim.scores).all()  # nothing ran
 
 
 def test_any_policy_with_a_compiled_twin_drives_the_sequential_protocols():

@@ -210,42 +210,36 @@ def evaluate(
             sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
         return sim
 
+    python_driven = builtin is None and not (sequential and compiled is not None)
     # load (or compile) the compiled functions on the path before the clock starts, without calling
-    # the policy: timings measure simulation (a compiled twin passed as an argument still compiles inside)
-    warm = make_sim(1 if sequential else min(runs, 16), 1)
+    # the policy, so timings measure simulation; a compiled twin passed as an argument cannot be
+    # cached and compiles inside the clock
     if builtin is not None:
-        builtin.run(warm)
-    else:
-        warm.start()
+        builtin.run(make_sim(1 if sequential else min(runs, 16), 1))
+    elif python_driven:
+        make_sim(1 if sequential else min(runs, 16), 1).start()
     start = time.perf_counter()
     total = runs * frames
     sim = make_sim(runs, frames)
 
-    if sequential:
-        if builtin is not None:
-            chunk = max(1, 200_000 // frames)
-            while not sim.done:
+    if python_driven:
+        _drive(sim, policy, progress, total)
+    elif sequential:  # one world with the policy compiled inline, in chunks of runs for the progress bar
+        chunk = max(1, 200_000 // frames)
+        while not sim.done:
+            if builtin is not None:
                 builtin.run(sim, max_runs=chunk)
-                if progress:
-                    progress(int(sim.ints[0, I_RUNS_DONE]) * frames, total)
-        elif compiled is not None:
-            chunk = max(1, 200_000 // frames)
-            done = 0
-            while done < runs:
-                done = sim.run_compiled(compiled, policy.pstate, max_runs=chunk)  # type: ignore[attr-defined]
-                if progress:
-                    progress(done * frames, total)
-        else:
-            _drive(sim, policy, progress, total)
-    else:
-        if builtin is not None:
-            chunk = max(64, 4_000_000 // frames)  # worlds per call: a progress tick every ~4M frames
-            for first in range(0, runs, chunk):
-                builtin.run(sim, first, min(runs, first + chunk))
-                if progress:
-                    progress(min(runs, first + chunk) * frames, total)
-        else:
-            _drive(sim, policy, progress, total)
+            else:
+                sim.run_compiled(compiled, policy.pstate, max_runs=chunk)  # type: ignore[attr-defined]
+            if progress:
+                progress(int(sim.ints[0, I_RUNS_DONE]) * frames, total)
+    else:  # a built-in over independent worlds, in chunks of worlds for the progress bar
+        assert builtin is not None
+        chunk = max(64, 4_000_000 // frames)
+        for first in range(0, runs, chunk):
+            builtin.run(sim, first, min(runs, first + chunk))
+            if progress:
+                progress(min(runs, first + chunk) * frames, total)
 
     wall = time.perf_counter() - start
     scores = sim.scores.reshape(-1).tolist()

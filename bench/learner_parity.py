@@ -64,19 +64,19 @@ def run_one(args: tuple[str, int, dict, str, str]) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from autotune.config import preset
-    from autotune.train import evaluate_official
+    from autotune.learner.config import preset
+    from autotune.learner.official import evaluate_official
 
     config = preset("network_basic", ruleset=ruleset, **overrides)
     t = time.perf_counter()
     if learner == "exact":
-        from autotune.js_learner import train_exact
+        from autotune.learner.js_learner import train_exact
 
         exact = train_exact(config, seed)
         net, runs, cache = exact.convnet, exact.training_run_scores, exact.final_gauss_cache
         it_s, diverged = None, False
     else:
-        from autotune.learner import train
+        from autotune.learner.training import train
 
         result = train(config, seed, quick_eval=False, stream=stream)
         net, runs, cache = result.convnet(), result.training_run_scores, result.final_gauss_cache or 0

@@ -14,7 +14,7 @@ machine), and the speed-up over the JS (its fastest seed: iterations / train_wal
 on the 2-core reference VM).
 
 Unless ``--no-eval``: a network_basic net trained in v2 is evaluated with the exact official v2
-protocol (``autotune.brain_policy``: 500 runs × 2,000 frames) with 0 and 10 agents; the first call
+protocol (``autotune.learner.brain_policy``: 500 runs × 2,000 frames) with 0 and 10 agents; the first call
 includes numba compilation, so a second, warm call is timed too.
 
 Prints a table and one JSON line (prefix ``JSON``).
@@ -32,8 +32,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from autotune.config import preset  # noqa: E402
-from autotune.learner import train  # noqa: E402
+from autotune.learner.config import preset  # noqa: E402
+from autotune.learner.training import train  # noqa: E402
 
 REFERENCE = ROOT.parent / "shared" / "reference"
 CONFIGS = {"default_v1": "default_v1.json", "network_basic": "network_basic.json", "strong": "strong.json"}
@@ -57,7 +57,7 @@ def js_iterations_per_second() -> dict[str, float]:
 
 def _exact(config, seed: int):  # noqa: ANN001, ANN202
     """The replica timed like ``train`` (first call per config compiles: one untimed warm-up)."""
-    from autotune.js_learner import train_exact
+    from autotune.learner.js_learner import train_exact
 
     t, c = time.perf_counter(), time.process_time()
     r = train_exact(config, seed)
@@ -109,7 +109,7 @@ def bench_training(
 
 
 def bench_eval() -> dict[str, dict]:
-    from autotune.train import evaluate_official
+    from autotune.learner.official import evaluate_official
 
     config = preset("network_basic")  # v2
     net = train(config, 1, quick_eval=False).convnet()

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from autotune.brain_policy import evaluate_net
-from autotune.netjson import load
+from autotune.convnet.netjson import load
+from autotune.learner.brain_policy import evaluate_net
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 REFERENCE = SHARED / "reference" / "crowd_net_scores.json"
@@ -104,7 +104,7 @@ def test_cache_flag_matters_for_odd_inputs() -> None:
 
 def test_protocol_api_paths_agree() -> None:
     """The policy object also works through ``sim.protocols.evaluate``: compiled twin and Python batches."""
-    from autotune.brain_policy import BrainPolicy, engine_config
+    from autotune.learner.brain_policy import BrainPolicy, engine_config
     from sim.protocols import evaluate
 
     nid = "dt-m-quadra-deeptraffic-v04"  # svm + maxout, 9 agents: copies, staggered decisions

@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from autotune.brain_policy import BrainPolicy, build_draws, gauss_skip, replay_build
-from autotune.forward import flatten, forward, greedy_actions
-from autotune.netjson import NetSettings
-from autotune.netspec import (
+from autotune.convnet.forward import flatten, forward, greedy_actions
+from autotune.convnet.netjson import NetSettings
+from autotune.convnet.spec import (
     FC,
     LRN,
     SVM,
@@ -23,12 +22,11 @@ from autotune.netspec import (
     Sigmoid,
     Softmax,
     Tanh,
-    build_torch,
     expand,
-    from_torch,
     init_convnet,
-    to_torch,
 )
+from autotune.convnet.torch_bridge import build_torch, from_torch, to_torch
+from autotune.learner.brain_policy import BrainPolicy, build_draws, gauss_skip, replay_build
 from sim.rng import mulberry32_advance, mulberry32_next, mulberry32_stream
 
 

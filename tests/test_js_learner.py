@@ -21,11 +21,11 @@ import math
 import numpy as np
 import pytest
 
-from autotune.brain_policy import evaluate_net
-from autotune.config import preset
-from autotune.js_learner import OriginalStream, draws_between, train_exact
-from autotune.learner import train
-from autotune.train import evaluate_official, net_settings
+from autotune.learner.brain_policy import evaluate_net
+from autotune.learner.config import preset
+from autotune.learner.js_learner import OriginalStream, draws_between, train_exact
+from autotune.learner.official import evaluate_official, net_settings
+from autotune.learner.training import train
 from sim.config import ConfigError
 from sim.rng import mulberry32_advance
 from tests.conftest import SHARED, load_json
@@ -173,11 +173,14 @@ def test_train_cli_reproduces_the_original_run(tmp_path) -> None:
     """``python -m autotune.train --stream original`` on default_v1 seed 2: the reference's training runs."""
     import json
 
-    from autotune.train import main
+    from autotune.cli import main
 
     out = tmp_path / "run"
     argv = ["--preset", "default_v1", "--set", "ruleset=v1", "--set", "dtype=float64", "--seed", "2"]
-    assert main([*argv, "--stream", "original", "--no-quick-eval", "--no-eval", "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(["train", *argv, "--stream", "original", "--no-quick-eval", "--no-eval", "--quiet", "--out", str(out)])
+        == 0
+    )
     result = json.loads((out / "result.json").read_text())
     assert sorted(result["training_run_scores"]) == _reference("default_v1.json", 2)["train"]["training_run_mph_sorted"]
     assert result["final_gauss_cache"] == 1
@@ -190,8 +193,8 @@ def test_evaluate_cli_reproduces_the_reference_evaluation(tmp_path, capsys) -> N
     """``python -m autotune.evaluate … --no-engine-load`` = the learner_scores.json evaluation."""
     import json
 
-    from autotune.evaluate import main
-    from autotune.netjson import write_net
+    from autotune.convnet.netjson import write_net
+    from autotune.evaluate import main  # the python -m autotune.evaluate shim
 
     config = preset("default_v1", ruleset="v1")
     result = train_exact(config, 1)

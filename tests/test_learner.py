@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from autotune import netspec
-from autotune.config import TrainConfig
-from autotune.learner import (
+from autotune.convnet import spec
+from autotune.learner.config import TrainConfig
+from autotune.learner.training import (
     DeepQLearner,
     GreedyPolicy,
     StopTraining,
@@ -491,13 +491,13 @@ def test_v2_agents_during_training():
 def test_zero_iterations():
     r = train(_small_training_config(train_iterations=0), seed=0, quick_eval=False)
     assert r.frames == 0 and r.decisions == 0 and r.curve == []
-    assert isinstance(r.convnet(), netspec.ConvNet)
+    assert isinstance(r.convnet(), spec.ConvNet)
 
 
 def test_v2_agents_greedy_snapshot_when_burnin_is_tiny():
     """burnin ≤ tw + 1: the frozen copies' ε = 1 − (tw + 1 − burnin)/(total − burnin) < 1, so they act
     greedily (on the net frozen when they were copied) with probability 1 − ε."""
-    from autotune.learner import DeepQLearner, _TrainingAgents
+    from autotune.learner.training import DeepQLearner, _TrainingAgents
 
     config = _small_training_config(other_agents=2, temporal_window=1, learning_steps_burnin=0, learning_steps_total=4)
     brain = DeepQLearner(config, 0)

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from autotune import evaluate as cli
-from autotune.netjson import (
+from autotune import cli
+from autotune.convnet.netjson import (
     NetFormatError,
     NetSettings,
     dumps_net,
@@ -24,7 +24,7 @@ from autotune.netjson import (
     validate,
     write_net,
 )
-from autotune.netspec import FC, SVM, Input, Regression, expand, init_convnet, parse_hidden
+from autotune.convnet.spec import FC, SVM, Input, Regression, expand, init_convnet, parse_hidden
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 NETS = SHARED / "crowd" / "nets"
@@ -261,7 +261,7 @@ def test_missing_files(tmp_path: Path) -> None:
 
 def _cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
     try:
-        code = cli.main(args)
+        code = cli.main(["evaluate", *args])
     except SystemExit as exc:  # argparse
         code = int(exc.code or 0)
     out, err = capsys.readouterr()

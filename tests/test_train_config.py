@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from autotune import netspec
-from autotune.config import PRESETS, ConfigError, TrainConfig, load_toml, preset, run_schedule
+from autotune.convnet import spec
+from autotune.learner.config import PRESETS, ConfigError, TrainConfig, load_toml, preset, run_schedule
 from tests.conftest import REFERENCE, ROOT
 
 
@@ -112,7 +112,7 @@ def test_camel_case_names():
         }
     )
     assert (c.lanes_side, c.patches_ahead, c.patches_behind, c.other_agents, c.train_iterations) == (2, 5, 1, 3, 500)
-    assert c.layers == (netspec.FC(4, "tanh"),)
+    assert c.layers == (spec.FC(4, "tanh"),)
     with pytest.raises(ConfigError, match="given twice"):
         TrainConfig.from_mapping({"lanesSide": 2, "lanes_side": 3})
 
@@ -125,10 +125,10 @@ def test_layer_forms():
             {"type": "fc", "num_neurons": 5, "activation": "tanh"},
         ]
     )
-    o = TrainConfig(layers=[netspec.FC(10, "relu"), netspec.FC(5, "tanh")])
+    o = TrainConfig(layers=[spec.FC(10, "relu"), spec.FC(5, "tanh")])
     assert s == d == o and s.hidden == "fc:10:relu|fc:5:tanh"
     crowd = TrainConfig(layers="svm:14|fc:10:maxout|lrn|fc:3:softmax|dropout:0.5")
-    types = [netspec.layer_type(layer) for layer in crowd.expanded_layers]
+    types = [spec.layer_type(layer) for layer in crowd.expanded_layers]
     assert types == ["input", "fc", "svm", "fc", "maxout", "lrn", "fc", "dropout", "fc", "regression"]
     assert TrainConfig(layers="").layers == ()  # linear Q-function
     with pytest.raises(ConfigError, match=r"^layers\[0\]\.activation: 'rel' is not allowed; did you mean 'relu'"):
@@ -240,15 +240,15 @@ def test_study_configs_load():
     ],
 )
 def test_cli_bad_input_exits_2(argv, needle, tmp_path, capsys):
-    from autotune.train import main
+    from autotune.cli import main
 
-    assert main([*argv, "--out", str(tmp_path / "o")]) == 2
+    assert main(["train", *argv, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
 
 
 def test_cli_bad_flag_exits_2(tmp_path, capsys):
-    from autotune.train import main
+    from autotune.train import main  # the python -m autotune.train shim
 
     assert main(["--preset", "network_basic", "--seed", "x", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -256,7 +256,7 @@ def test_cli_bad_flag_exits_2(tmp_path, capsys):
 
 
 def test_json_config_values_in_set(tmp_path):
-    from autotune.train import _parse_value
+    from autotune.commands.train import _parse_value
 
     assert _parse_value("0.5") == 0.5 and _parse_value("fc:3:relu") == "fc:3:relu" and _parse_value("true") is True
     assert json.loads(json.dumps(preset("network_basic").to_mapping()))["layers"] == "fc:10:relu"

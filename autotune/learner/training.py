@@ -83,9 +83,10 @@ import numba
 import numpy as np
 import torch
 
-from autotune import netspec
-from autotune.config import NUM_ACTIONS, ConfigError, TrainConfig
-from autotune.js_learner import OriginalStream
+from autotune.convnet import spec, torch_bridge
+from autotune.learner.config import NUM_ACTIONS, ConfigError, TrainConfig
+from autotune.learner.js_learner import OriginalStream
+from autotune.runtime import process_configured
 from sim import engine
 from sim.grid import js_max, js_min
 from sim.layout import I_RUNS_DONE
@@ -138,12 +139,12 @@ def js_epsilon(age: int, burnin: int, total: int, epsilon_min: float) -> float:
 # --------------------------------------------------------------------------------------------
 
 
-def build_network(config: TrainConfig, generator: torch.Generator) -> tuple[Any, tuple[netspec.Layer, ...]]:
-    """The convnetjs net of ``config`` as a ``netspec.ConvNetModule`` with convnetjs initialisation."""
+def build_network(config: TrainConfig, generator: torch.Generator) -> tuple[Any, tuple[spec.Layer, ...]]:
+    """The convnetjs net of ``config`` as a ``torch_bridge.ConvNetModule`` with convnetjs initialisation."""
     layers = config.expanded_layers
     dtype = _TORCH_DTYPES[config.dtype]
-    module = netspec.build_torch(layers, dtype=dtype)
-    prefs = netspec.fc_bias_prefs(layers)
+    module = torch_bridge.build_torch(layers, dtype=dtype)
+    prefs = spec.fc_bias_prefs(layers)
     with torch.no_grad():
         for lin, pref in zip(module.fc_layers, prefs, strict=True):
             fan_in = lin.weight.shape[1]
@@ -346,7 +347,7 @@ def _lrn(x: torch.Tensor, k: float, n: int, alpha: float, beta: float) -> torch.
 class _LRNOp:
     """1-D local response normalisation; backward = its exact derivative (via autograd on the layer)."""
 
-    def __init__(self, x: torch.Tensor, B: int, layer: netspec.LRN) -> None:
+    def __init__(self, x: torch.Tensor, B: int, layer: spec.LRN) -> None:
         self.x = x
         self.x0 = x[:B]
         self.layer = layer
@@ -384,34 +385,34 @@ class _Kernel:
         n_w = module.n_weights
         ops: list[Any] = []
         cur = self.x
-        first_fc = next(i for i, layer in enumerate(layers) if isinstance(layer, netspec.FC))
+        first_fc = next(i for i, layer in enumerate(layers) if isinstance(layer, spec.FC))
         last = len(layers) - 1
         self.fc_ops: list[_FCOp] = []
         for i, layer in enumerate(layers):
-            if isinstance(layer, netspec.Input):
+            if isinstance(layer, spec.Input):
                 continue
-            if isinstance(layer, netspec.FC):
+            if isinstance(layer, spec.FC):
                 op: Any = _FCOp(next(fcs), cur, B, need_dx=i > first_fc, flat_grad=self.G)
                 self.fc_ops.append(op)
-            elif isinstance(layer, netspec.Relu):
+            elif isinstance(layer, spec.Relu):
                 op = _ReluOp(cur, B)
-            elif isinstance(layer, netspec.Tanh):
+            elif isinstance(layer, spec.Tanh):
                 op = _TanhOp(cur, B)
-            elif isinstance(layer, netspec.Sigmoid):
+            elif isinstance(layer, spec.Sigmoid):
                 op = _SigmoidOp(cur, B)
-            elif isinstance(layer, netspec.Maxout):
+            elif isinstance(layer, spec.Maxout):
                 op = _MaxoutOp(cur, B, layer.group_size)
-            elif isinstance(layer, netspec.Dropout):
+            elif isinstance(layer, spec.Dropout):
                 op = _DropoutOp(cur, B, layer.drop_prob, gen)
-            elif isinstance(layer, netspec.SVM):
+            elif isinstance(layer, spec.SVM):
                 op = _SVMOp(cur)
-            elif isinstance(layer, netspec.Softmax):
+            elif isinstance(layer, spec.Softmax):
                 if i == last:  # pragma: no cover - deepqlearn always ends in regression
                     raise ValueError("a final softmax layer is not a Q-function")
                 op = _SoftmaxOp(cur, B)
-            elif isinstance(layer, netspec.Regression):
+            elif isinstance(layer, spec.Regression):
                 continue  # identity; the last fc's output is Q
-            elif isinstance(layer, netspec.LRN):
+            elif isinstance(layer, spec.LRN):
                 op = _LRNOp(cur, B, layer)
             else:  # pragma: no cover
                 raise ValueError(f"layer {layer!r} is not supported")
@@ -437,7 +438,7 @@ class _Kernel:
         self.dq = torch.empty(B, NUM_ACTIONS, dtype=dtype)
         self.dq_flat = self.dq.view(-1)
         # optimizer state (flat: weights block first, then biases; see _flatten_parameters)
-        fc_layers = [layer for layer in layers if isinstance(layer, netspec.FC)]
+        fc_layers = [layer for layer in layers if isinstance(layer, spec.FC)]
         self.Ws = [op.W for op in self.fc_ops]
         self.gWs = [op.gW for op in self.fc_ops]
         self.Pw = self.P[:n_w]
@@ -541,7 +542,7 @@ def _numpy_forward_ops(module: Any, layers: tuple, np_dtype: Any) -> list[Callab
     fcs = iter(module.fc_layers)
     ops: list[Callable[[np.ndarray], np.ndarray]] = []
     for layer in layers:
-        if isinstance(layer, netspec.FC):
+        if isinstance(layer, spec.FC):
             lin = next(fcs)
             W = lin.weight.data.numpy()  # shares memory with the trained parameters
             b = lin.bias.data.numpy()
@@ -553,15 +554,15 @@ def _numpy_forward_ops(module: Any, layers: tuple, np_dtype: Any) -> list[Callab
                 return out
 
             ops.append(fc)
-        elif isinstance(layer, netspec.Relu):
+        elif isinstance(layer, spec.Relu):
 
             def relu(x: np.ndarray) -> np.ndarray:
                 return np.maximum(x, 0, out=x)  # NaN passes, as in convnetjs
 
             ops.append(relu)
-        elif isinstance(layer, netspec.Tanh):
+        elif isinstance(layer, spec.Tanh):
             ops.append(lambda x: np.tanh(x, out=x))
-        elif isinstance(layer, netspec.Sigmoid):
+        elif isinstance(layer, spec.Sigmoid):
 
             def sigmoid(x: np.ndarray) -> np.ndarray:
                 np.negative(x, out=x)
@@ -570,7 +571,7 @@ def _numpy_forward_ops(module: Any, layers: tuple, np_dtype: Any) -> list[Callab
                 return np.reciprocal(x, out=x)
 
             ops.append(sigmoid)
-        elif isinstance(layer, netspec.Maxout):
+        elif isinstance(layer, spec.Maxout):
             g = layer.group_size
 
             def maxout(x: np.ndarray, g: int = g) -> np.ndarray:
@@ -578,7 +579,7 @@ def _numpy_forward_ops(module: Any, layers: tuple, np_dtype: Any) -> list[Callab
                 return x[: m * g].reshape(m, g).max(axis=1)
 
             ops.append(maxout)
-        elif isinstance(layer, netspec.Dropout):
+        elif isinstance(layer, spec.Dropout):
             p = float(layer.drop_prob)
 
             def dropout(x: np.ndarray, p: float = p) -> np.ndarray:
@@ -586,17 +587,17 @@ def _numpy_forward_ops(module: Any, layers: tuple, np_dtype: Any) -> list[Callab
                 return x
 
             ops.append(dropout)
-        elif isinstance(layer, netspec.Softmax):
+        elif isinstance(layer, spec.Softmax):
 
             def softmax(x: np.ndarray) -> np.ndarray:
                 e = np.exp(x - x.max())
                 return e / e.sum()
 
             ops.append(softmax)
-        elif isinstance(layer, netspec.LRN):
+        elif isinstance(layer, spec.LRN):
             L = layer
 
-            def lrn(x: np.ndarray, L: netspec.LRN = L) -> np.ndarray:
+            def lrn(x: np.ndarray, L: spec.LRN = L) -> np.ndarray:
                 half = L.n // 2
                 sq = np.pad(x * x, half)
                 window = np.convolve(sq, np.ones(2 * half + 1, dtype=x.dtype), mode="valid")
@@ -840,7 +841,7 @@ class GreedyPolicy:
     Each (world, car) behaves like a fresh evaluation-time brain (``learning = false``): its first
     ``tw`` decisions are warm-up actions (v1 random, v2 0), then ``rf < epsilon_test_time`` gives a
     random action, else greedy. Used for the quick scores during training; the exact, draw-for-draw
-    evaluation of a trained net is ``autotune.brain_policy``.
+    evaluation of a trained net is ``autotune.learner.brain_policy``.
     """
 
     def __init__(self, module: Any, config: TrainConfig, rng: np.random.Generator | None = None) -> None:
@@ -995,7 +996,7 @@ class CurvePoint(NamedTuple):
 
 @dataclasses.dataclass
 class TrainResult:
-    """What ``train`` returns. ``module`` is the trained ``netspec.ConvNetModule`` (eval mode)."""
+    """What ``train`` returns. ``module`` is the trained ``torch_bridge.ConvNetModule`` (eval mode)."""
 
     config: TrainConfig
     seed: int
@@ -1036,9 +1037,9 @@ class TrainResult:
     def frames_per_second(self) -> float:
         return self.frames / self.train_seconds if self.train_seconds > 0 else math.inf
 
-    def convnet(self) -> netspec.ConvNet:
+    def convnet(self) -> spec.ConvNet:
         """The trained net as a float64 ``ConvNet`` (for export and exact evaluation)."""
-        return netspec.from_torch(self.module, self.layers)
+        return torch_bridge.from_torch(self.module, self.layers)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready counters and status (no weights, no curve)."""
@@ -1087,7 +1088,7 @@ def train(
     quick_eval_frames: int = 2000,
     quick_eval_seed: int = QUICK_EVAL_SEED,
     progress: Callable[[int, int], None] | None = None,
-    torch_threads: int | None = 1,
+    torch_threads: int | None = None,
     stream: str = "independent",
 ) -> TrainResult:
     """Train ``config`` with the DeepTraffic training protocol from ``seed``.
@@ -1108,8 +1109,12 @@ def train(
     k = 0 … report_points − 1. The reporter stops training by returning True or raising
     ``StopTraining``; other exceptions propagate. A diverging net (non-finite Q or loss) ends
     training with ``result.diverged`` set. ``progress(frames_done, total_frames)`` is called about
-    every 1 % (for progress bars). ``torch_threads`` sets torch's intra-op threads for the run
-    (restored afterwards; None leaves it alone); denormal flushing is on during the run and off after.
+    every 1 % (for progress bars).
+
+    Process settings: after ``autotune.configure_process`` (the CLI, a worker) ``train`` leaves
+    torch's threads and denormal flushing as the process set them. ``torch_threads`` (or a process
+    nobody configured, then with 1 thread) sets them for this call only: that many intra-op
+    threads and denormal flushing on, both restored afterwards.
     """
     if reporter is not None and not quick_eval:
         raise ValueError("reporter: needs quick_eval=True (the reporter receives the quick score)")
@@ -1119,10 +1124,12 @@ def train(
         raise ConfigError(f"stream: '{stream}' is not a stream; use independent or original")
     s_brain, s_agents, sim_state, s_eval = _seed_material(seed)
     original = OriginalStream(seed) if stream == "original" else None
+    if torch_threads is None and not process_configured():
+        torch_threads = 1
     old_threads = torch.get_num_threads()
     if torch_threads is not None:
         torch.set_num_threads(torch_threads)
-    torch.set_flush_denormal(True)  # tiny activations must not hit the slow denormal path (reset to off after)
+        torch.set_flush_denormal(True)  # tiny activations must not hit the slow denormal path (reset to off after)
     try:
         with torch.no_grad():
             return _train(
@@ -1132,7 +1139,7 @@ def train(
     finally:
         if torch_threads is not None:
             torch.set_num_threads(old_threads)
-        torch.set_flush_denormal(False)
+            torch.set_flush_denormal(False)
 
 
 def _train(

@@ -56,9 +56,9 @@ import math
 import numpy as np
 from numba import njit
 
-from autotune.brain_policy import gauss_skip
-from autotune.config import TrainConfig
-from autotune.netspec import FC, ConvNet, Input, Regression, Relu, Sigmoid, Tanh, fc_bias_prefs
+from autotune.convnet.spec import FC, ConvNet, Input, Regression, Relu, Sigmoid, Tanh, fc_bias_prefs
+from autotune.learner.brain_policy import gauss_skip
+from autotune.learner.config import TrainConfig
 from sim import engine
 from sim.config import ConfigError
 from sim.grid import js_max, js_min

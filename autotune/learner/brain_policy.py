@@ -35,7 +35,7 @@ carries the flag from one evaluation into the next brain build (``gauss_cache`` 
 
 Usage::
 
-    net, settings = autotune.netjson.load("nets/x.json")            # + x.config.json
+    net, settings = autotune.convnet.netjson.load("nets/x.json")            # + x.config.json
     result = evaluate_net(net, settings, "v2-official")             # sim.protocols.EvalResult
     result = evaluate_net(net, settings, "v1-original", seed=2001)  # evaluate.js, one repetition
 
@@ -53,9 +53,9 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from autotune.forward import FlatNet, argmax_js, flatten, forward_flat
-from autotune.netjson import NetSettings, validate
-from autotune.netspec import NUM_ACTIONS, ConvNet
+from autotune.convnet.forward import FlatNet, argmax_js, flatten, forward_flat
+from autotune.convnet.netjson import NetSettings, validate
+from autotune.convnet.spec import NUM_ACTIONS, ConvNet
 from sim import engine
 from sim.config import ConfigError, EngineConfig
 from sim.layout import I_DONE, I_RUNS_DONE

@@ -20,7 +20,7 @@ and ``tdtrainer_options`` keys keep their names). Two ways to build one:
   method sgd.
 
 ``layers`` is the hidden part of ``layer_defs`` (between the input layer, whose size deepqlearn
-derives, and the final ``regression(5)``), as ``autotune.netspec`` layer definitions; it accepts
+derives, and the final ``regression(5)``), as ``autotune.convnet.spec`` layer definitions; it accepts
 the crowd's string form ``"fc:10:relu|fc:5:tanh"``, a list of netspec objects or a list of dicts
 ``{"type": "fc", "num_neurons": 10, "activation": "relu"}``.
 
@@ -38,7 +38,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from autotune import netspec
+from autotune.convnet import spec
 from sim.config import RULESETS, ConfigError, EngineConfig, input_size, nearest_key_error
 
 __all__ = [
@@ -52,7 +52,7 @@ __all__ = [
     "parse_layers",
 ]
 
-NUM_ACTIONS = netspec.NUM_ACTIONS
+NUM_ACTIONS = spec.NUM_ACTIONS
 TRAINER_METHODS = ("sgd", "adagrad", "windowgrad", "adadelta", "nesterov")
 DTYPES = ("float32", "float64")
 # fc activations: convnetjs's four, plus two strings that explicitly mean "none" ('softmax' occurs in
@@ -113,34 +113,34 @@ OPT_KEYS = (
 TRAINER_KEYS = ("learning_rate", "momentum", "batch_size", "l2_decay", "l1_decay", "method", "ro", "eps")
 
 
-def parse_layers(value: Any) -> tuple[netspec.Layer, ...]:
+def parse_layers(value: Any) -> tuple[spec.Layer, ...]:
     """Hidden layers from a crowd string, netspec objects or ``{"type": …}`` dicts (``ConfigError`` on error)."""
     try:
         if value is None:
             return ()
         if isinstance(value, str):
-            parsed = netspec.parse_hidden(value)
+            parsed = spec.parse_hidden(value)
             _check_activations(parsed)
             return parsed
         if isinstance(value, Mapping):
             value = [value]
         if not isinstance(value, Sequence):
             raise ConfigError(f"layers: expected a string like 'fc:10:relu|fc:5:tanh' or a list, got {value!r}")
-        out: list[netspec.Layer] = []
+        out: list[spec.Layer] = []
         for i, item in enumerate(value):
-            if isinstance(item, tuple(netspec.LAYER_TYPES.values())):
+            if isinstance(item, tuple(spec.LAYER_TYPES.values())):
                 out.append(item)  # type: ignore[arg-type]
             elif isinstance(item, Mapping):
                 out.append(_layer_from_dict(item, i))
             elif isinstance(item, str):
-                out.extend(netspec.parse_hidden(item))
+                out.extend(spec.parse_hidden(item))
             else:
                 raise ConfigError(
                     f"layers[{i}]: {item!r} is not a layer (use a dict with 'type' or a string 'fc:10:relu')"
                 )
         _check_activations(out)
         return tuple(out)
-    except netspec.NetSpecError as exc:
+    except spec.NetSpecError as exc:
         raise ConfigError(f"layers: {exc}") from None
 
 
@@ -150,23 +150,23 @@ def _choice_error(field: str, value: Any, valid: Sequence[str]) -> ConfigError:
     return ConfigError(f"{field}: {value!r} is not allowed{hint} (use one of {', '.join(valid)})")
 
 
-def _check_activations(layers: Sequence[netspec.Layer]) -> None:
+def _check_activations(layers: Sequence[spec.Layer]) -> None:
     for i, layer in enumerate(layers):
-        if isinstance(layer, netspec.FC) and layer.activation is not None and layer.activation not in ACTIVATIONS:
+        if isinstance(layer, spec.FC) and layer.activation is not None and layer.activation not in ACTIVATIONS:
             raise _choice_error(f"layers[{i}].activation", layer.activation, ACTIVATIONS)
 
 
-def _layer_from_dict(item: Mapping[str, Any], i: int) -> netspec.Layer:
+def _layer_from_dict(item: Mapping[str, Any], i: int) -> spec.Layer:
     kind = item.get("type", item.get("layer_type"))
     if kind is None and "num_neurons" in item:
         kind = "fc"  # learner_scores.json's hidden_layers entries: {num_neurons, activation}
     if kind is None:
-        raise ConfigError(f"layers[{i}]: missing 'type' (one of {', '.join(netspec.LAYER_TYPES)})")
+        raise ConfigError(f"layers[{i}]: missing 'type' (one of {', '.join(spec.LAYER_TYPES)})")
     kind = str(kind).lower()
-    if kind not in netspec.LAYER_TYPES or kind == "input":
-        valid = [k for k in netspec.LAYER_TYPES if k != "input"]
+    if kind not in spec.LAYER_TYPES or kind == "input":
+        valid = [k for k in spec.LAYER_TYPES if k != "input"]
         raise nearest_key_error(f"layers[{i}] layer type", kind, valid)
-    cls = netspec.LAYER_TYPES[kind]
+    cls = spec.LAYER_TYPES[kind]
     names = [f.name for f in dataclasses.fields(cls)]
     kwargs = {}
     for key, val in item.items():
@@ -183,8 +183,8 @@ def _layer_from_dict(item: Mapping[str, Any], i: int) -> netspec.Layer:
         raise ConfigError(f"layers[{i}] ({kind}): {exc}") from None
 
 
-def _layer_to_dict(layer: netspec.Layer) -> dict[str, Any]:
-    out: dict[str, Any] = {"type": netspec.layer_type(layer)}
+def _layer_to_dict(layer: spec.Layer) -> dict[str, Any]:
+    out: dict[str, Any] = {"type": spec.layer_type(layer)}
     for f in dataclasses.fields(layer):
         v = getattr(layer, f.name)
         if v is not None and v != f.default:
@@ -245,7 +245,7 @@ class TrainConfig:
     epsilon_test_time: float = 0.0
     """epsilon_test_time [probability]: exploration when not learning (evaluation) (0–1)."""
     # -- network ------------------------------------------------------------------------------
-    layers: tuple = (netspec.FC(1, "relu"),)
+    layers: tuple = (spec.FC(1, "relu"),)
     """Hidden layers (netspec defs; string 'fc:10:relu|fc:5:tanh' accepted); input and regression(5) implied."""
     # -- tdtrainer_options -------------------------------------------------------------------
     learning_rate: float = 0.001
@@ -326,8 +326,8 @@ class TrainConfig:
             )
         self.engine_config  # noqa: B018 - validates the engine part (ranges, v1 without agents)
         try:
-            sizes = netspec.layer_sizes(self.expanded_layers)
-        except netspec.NetSpecError as exc:
+            sizes = spec.layer_sizes(self.expanded_layers)
+        except spec.NetSpecError as exc:
             raise ConfigError(f"layers: {exc}") from None
         if sizes[-1][1] != NUM_ACTIONS:  # pragma: no cover - regression(5) is appended by us
             raise ConfigError("layers: the network must end in 5 outputs")
@@ -352,25 +352,25 @@ class TrainConfig:
     @property
     def net_inputs(self) -> int:
         """Network input size: num_states·tw + 5·tw + num_states (spec §10.2)."""
-        return netspec.net_input_size(self.num_states, self.temporal_window)
+        return spec.net_input_size(self.num_states, self.temporal_window)
 
     @property
-    def layer_defs(self) -> tuple[netspec.Layer, ...]:
+    def layer_defs(self) -> tuple[spec.Layer, ...]:
         """Full ``layer_defs``: input(net_inputs), the hidden layers, regression(5)."""
-        return netspec.deepqlearn_defs(self.net_inputs, self.layers)
+        return spec.deepqlearn_defs(self.net_inputs, self.layers)
 
     @property
-    def expanded_layers(self) -> tuple[netspec.Layer, ...]:
+    def expanded_layers(self) -> tuple[spec.Layer, ...]:
         """The layers convnetjs builds from ``layer_defs`` (activations and inserted fcs explicit)."""
         try:
-            return netspec.expand(self.layer_defs)
-        except netspec.NetSpecError as exc:
+            return spec.expand(self.layer_defs)
+        except spec.NetSpecError as exc:
             raise ConfigError(f"layers: {exc}") from None
 
     @property
     def hidden(self) -> str:
         """The crowd's string form of ``layers``."""
-        return netspec.format_hidden(self.layers)
+        return spec.format_hidden(self.layers)
 
     @property
     def schedule(self) -> tuple[int, int]:
@@ -482,7 +482,7 @@ class TrainConfig:
                 if key == "layer_defs":
                     put("layers", _hidden_from_layer_defs(value), "opt.")
                 elif key == "hidden_layer_sizes":
-                    put("layers", [netspec.FC(int(n), "relu") for n in value], "opt.")
+                    put("layers", [spec.FC(int(n), "relu") for n in value], "opt.")
                 elif key == "random_action_distribution":
                     raise ConfigError("opt.random_action_distribution: not supported (no DeepTraffic template uses it)")
                 else:
@@ -519,10 +519,10 @@ class TrainConfig:
         return config
 
 
-def _hidden_from_layer_defs(defs: Any) -> tuple[netspec.Layer, ...]:
+def _hidden_from_layer_defs(defs: Any) -> tuple[spec.Layer, ...]:
     """Hidden part of a full ``layer_defs`` list (drops the input layer and the final regression)."""
     layers = list(parse_layers(_strip_input(defs)))
-    if layers and isinstance(layers[-1], netspec.Regression):
+    if layers and isinstance(layers[-1], spec.Regression):
         if layers[-1].num_neurons != NUM_ACTIONS:
             raise ConfigError(
                 f"layer_defs: the final regression has {layers[-1].num_neurons} outputs; DeepTraffic needs 5"
@@ -537,7 +537,7 @@ def _strip_input(defs: Any) -> Any:
     if isinstance(defs, Sequence) and not isinstance(defs, str) and defs:
         first = defs[0]
         if (isinstance(first, Mapping) and first.get("type", first.get("layer_type")) == "input") or isinstance(
-            first, netspec.Input
+            first, spec.Input
         ):
             return list(defs[1:])
     return defs

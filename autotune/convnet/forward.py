@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-from autotune.netspec import (
+from autotune.convnet.spec import (
     FC,
     LRN,
     SVM,

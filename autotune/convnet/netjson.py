@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from autotune.netspec import (
+from autotune.convnet.spec import (
     FC,
     LRN,
     NUM_ACTIONS,

@@ -1,0 +1,60 @@
+"""``autotune <subcommand>``: the console script. Command modules parse and print; the work is library code.
+
+Each subcommand lives in its own module exposing ``add_parser(subparsers) -> None`` (adds its
+subparser with help text and ``func=run``) and ``run(args) -> int``. Adding a subcommand is one
+line in ``SUBCOMMANDS``. Bad arguments print one line ``error: …`` on stderr and exit with 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import NoReturn
+
+EXIT_USAGE = 2
+
+# one module per subcommand, in the order ``autotune --help`` lists them
+SUBCOMMANDS: tuple[str, ...] = (
+    "autotune.commands.train",
+    "autotune.commands.evaluate",
+)
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with the house error style: one line on stderr, exit status 2, no usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``autotune`` parser with every subcommand of ``SUBCOMMANDS`` registered."""
+    parser = ArgumentParser(prog="autotune", description="DeepTraffic deep-Q-learning: train, evaluate, tune.")
+    subparsers = parser.add_subparsers(dest="command", metavar="<command>", required=True)
+    for module_name in SUBCOMMANDS:
+        importlib.import_module(module_name).add_parser(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None, *, owns_process: bool | None = None) -> int:
+    """Parse ``argv`` (default ``sys.argv[1:]``) and run the chosen subcommand; returns the exit status.
+
+    As the process's owner (default: when ``argv`` is None, i.e. run as the console script) it
+    first sets the process-wide settings (``configure_process``); an in-process call (a test, a
+    notebook) leaves its caller's process as it is.
+    """
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a one-line usage error already printed (2)
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    if argv is None if owns_process is None else owns_process:
+        from autotune.runtime import configure_process
+
+        configure_process()
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

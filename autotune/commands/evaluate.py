@@ -1,0 +1,144 @@
+"""``autotune evaluate``: evaluate a trained convnetjs net (DeepTraffic ``*.json`` + ``*.config.json``) exactly.
+
+(``python -m autotune.evaluate`` is the same command.) The scores are the original's:
+
+    autotune evaluate --net NET.json [--config NET.config.json] [--ruleset v1|v2]
+        [--protocol v2-official|v1-original|v1-distribution|custom] [--seed S] [--other-agents N]
+        [--runs R --frames F] [--threads T] [--gauss-cache 0|1] [--no-engine-load] [--json]
+
+Defaults: config = ``<net>.config.json``; ruleset = the protocol's, else the net's own engine
+(v2 iff its config sets ``otherAgents``); protocol = that ruleset's official one (v2-official /
+v1-original); other agents (v2) = the net's ``otherAgents``. With ``--json`` the last line is one
+JSON object with the fields of ``sim.protocols.EvalResult.to_json()`` (scores per run in run order,
+median_site, median, mean, ci95, …) plus ``net`` and ``gauss_cache``. Bad input (missing file, bad
+JSON, sizes that do not fit the settings, NaN weights, unknown layer types) prints one line
+``error: <field>: <problem>`` and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+PROTOCOL_ALIASES = {
+    "v2-official": "v2-official",
+    "v2_official": "v2-official",
+    "official": None,  # the ruleset's official protocol
+    "v1-original": "v1-original",
+    "v1_original": "v1-original",
+    "evaluate.js": "v1-original",
+    "v1-distribution": "v1-distribution",
+    "v1_distribution": "v1-distribution",
+    "v1-dist": "v1-distribution",
+    "v1_dist": "v1-distribution",
+    "custom": "custom",
+}
+
+
+def add_parser(subparsers: Any) -> None:
+    """``autotune evaluate``: its options, help text and ``func=run``."""
+    p = subparsers.add_parser(
+        "evaluate",
+        help="evaluate a trained convnetjs net exactly as the original",
+        description="Evaluate a trained convnetjs DeepTraffic net in the exact simulator (original JS scores).",
+    )
+    p.add_argument("--net", required=True, help="convnetjs Net JSON (the argument of value_net.fromJSON)")
+    p.add_argument("--config", help="DeepTraffic settings JSON (default: <net>.config.json beside the net)")
+    p.add_argument("--ruleset", choices=("v1", "v2"), help="engine (default: the protocol's, else the net's own)")
+    p.add_argument(
+        "--protocol",
+        default="official",
+        help="v2-official, v1-original, v1-distribution, custom (default: the ruleset's official)",
+    )
+    p.add_argument("--seed", type=int, help="protocol seed (default: the protocol's: 1, 2000, 1000, 0)")
+    p.add_argument(
+        "--other-agents", type=int, help="v2: extra agents driven by the net (default: the net's otherAgents)"
+    )
+    p.add_argument("--runs", type=int, help="override the protocol's number of runs")
+    p.add_argument("--frames", type=int, help="override the protocol's frames per run")
+    p.add_argument("--threads", type=int, help="numba threads (custom protocol)")
+    p.add_argument(
+        "--gauss-cache",
+        type=int,
+        choices=(0, 1),
+        default=0,
+        help="convnetjs Gaussian cache flag before the brain build (0 = fresh process)",
+    )
+    p.add_argument(
+        "--no-engine-load",
+        action="store_true",
+        help="v1-original: no engine-construction draws after the brain build (the learner_scores.json "
+        "harness; evaluate.js has them)",
+    )
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object on the last line")
+    p.set_defaults(func=run)
+
+
+def evaluate(args: argparse.Namespace) -> dict[str, Any]:
+    """The evaluation of the parsed arguments, as the JSON-able result."""
+    from autotune.convnet.netjson import load
+    from autotune.learner.brain_policy import evaluate_net
+    from autotune.learner.official import OFFICIAL_PROTOCOL
+
+    net, settings = load(args.net, args.config)
+    key = args.protocol.strip().lower()
+    if key not in PROTOCOL_ALIASES:
+        from sim.config import ConfigError
+
+        raise ConfigError(
+            f"protocol: '{args.protocol}' is not a protocol; "
+            "use one of v2-official, v1-original, v1-distribution, custom"
+        )
+    protocol = PROTOCOL_ALIASES[key]
+    if protocol is None:
+        protocol = OFFICIAL_PROTOCOL[args.ruleset or settings.engine]
+    result = evaluate_net(
+        net,
+        settings,
+        protocol,
+        ruleset=args.ruleset,
+        seed=args.seed,
+        other_agents=args.other_agents,
+        runs=args.runs,
+        frames=args.frames,
+        threads=args.threads,
+        gauss_cache=args.gauss_cache,
+        engine_load=not args.no_engine_load,
+    )
+    out = result.to_json()
+    out["net"] = str(args.net)
+    out["hidden_layers"] = net.hidden
+    out["engine_version"] = settings.engine
+    out["gauss_cache"] = args.gauss_cache
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Evaluate and print; 0, or 2 after a one-line error for bad input."""
+    from autotune.convnet.netjson import NetFormatError
+    from autotune.convnet.spec import NetSpecError
+    from sim.config import ConfigError
+
+    try:
+        out = evaluate(args)
+    except (NetFormatError, NetSpecError, ConfigError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:  # e.g. simulator argument checks
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(
+            f"{out['net']}: {out['hidden_layers'] or 'linear'} ({out['engine_version']} net) — {out['protocol']} "
+            f"on {out['ruleset']}, {out['runs']} runs × {out['frames']} frames, {out['other_agents']} other agents"
+        )
+        print(
+            f"site median {out['median_site']:.2f} mph | median {out['median']:.3f} | mean {out['mean']:.3f} "
+            f"(95% CI {out['ci95'][0]:.3f}–{out['ci95'][1]:.3f}) | min {out['min']:.2f} max {out['max']:.2f}"
+        )
+        print(f"{out['wall_seconds']:.1f} s, {out['frames_per_second']:,.0f} frames/s")
+    return 0

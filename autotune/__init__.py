@@ -24,8 +24,8 @@ _EXPORTS: dict[str, str] = {
     "TrainResult": "autotune.learner.training",
     "CurvePoint": "autotune.learner.training",
     "StopTraining": "autotune.learner.training",
-    "DivergedError": "autotune.learner.training",
-    "quick_evaluate": "autotune.learner.training",
+    "DivergedError": "autotune.learner.brain",
+    "quick_evaluate": "autotune.learner.quick_eval",
     # exact evaluation of a net
     "evaluate_official": "autotune.learner.official",
     "net_settings": "autotune.learner.official",

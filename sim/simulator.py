@@ -240,17 +240,17 @@ class Simulator:
         """
         if not self._seeded:
             raise RuntimeError("seed the simulator before start_single()")
-        self._run_one()
+        engine.advance_one(*self._advance_args)
         return int(self._obs_car[0])
 
     def step_single(self, action: int) -> int:
-        """Answer world 0's pending decision (trusted action 0–4) and run to the next one."""
-        self._actions[0] = action
-        self._run_one()
-        return int(self._obs_car[0])
+        """Answer world 0's pending decision (trusted action 0–4) and run to the next one.
 
-    def _run_one(self) -> None:
+        The training loop's hot path: one compiled call, no checks, no objects.
+        """
+        self._actions[0] = action
         engine.advance_one(*self._advance_args)
+        return int(self._obs_car[0])
 
     @property
     def obs_inputs(self) -> np.ndarray:

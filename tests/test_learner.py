@@ -10,14 +10,11 @@ import pytest
 import torch
 
 from autotune.convnet import spec
+from autotune.learner.brain import DeepQLearner, js_argmax_rows, js_epsilon
 from autotune.learner.config import TrainConfig
+from autotune.learner.quick_eval import GreedyPolicy
 from autotune.learner.training import (
-    DeepQLearner,
-    GreedyPolicy,
     StopTraining,
-    _Stepper,
-    js_argmax_rows,
-    js_epsilon,
     train,
 )
 from sim.layout import CA, CC
@@ -347,7 +344,7 @@ def test_greedy_policy_window_and_warmup():
 # -- simulator driving and the training protocol --------------------------------------------------
 
 
-def test_stepper_matches_public_api():
+def test_single_world_fast_path_matches_public_api():
     config = tiny(ruleset="v2", other_agents=2, lanes_side=1, patches_ahead=3)
     actions = np.random.default_rng(0).integers(0, 5, 400)
 
@@ -356,12 +353,11 @@ def test_stepper_matches_public_api():
         sim.seed_training(12345, 3)
         trace = []
         if fast:
-            st = _Stepper(sim)
-            car = st.start()
+            car = sim.start_single()
             k = 0
             while car >= 0:
-                trace.append((car, st.inputs.copy(), st.reward if car == 0 else None))
-                car = st.step(int(actions[k % 400]))
+                trace.append((car, sim.obs_inputs[0].copy(), float(sim.obs_reward[0]) if car == 0 else None))
+                car = sim.step_single(int(actions[k % 400]))
                 k += 1
         else:
             obs = sim.start()
@@ -386,14 +382,14 @@ def test_bogus_first_reward_and_transition_across_reset(ruleset):
     b = DeepQLearner(c, 0)
     sim = Simulator(c.engine_config, 1, 600, 2)  # 20 decisions per run
     sim.seed_stream(7) if ruleset == "v1" else sim.seed_training(7, 1)
-    st = _Stepper(sim)
-    car = st.start()
+    car = sim.start_single()
     rewards, inputs, single = [], [], []
     while car >= 0:
-        rewards.append(st.reward)
-        inputs.append(st.inputs.astype(np.float32))
+        reward = float(sim.obs_reward[0])
+        rewards.append(reward)
+        inputs.append(sim.obs_inputs[0].astype(np.float32))
         single.append((sim.cars[0, CC, 0] * sim.cars[0, CA, 0] - 60.0) / 20.0)  # one frame's (c·a − 60)/20
-        car = st.step(b.learn(st.inputs, st.reward))
+        car = sim.step_single(b.learn(sim.obs_inputs[0], reward))
     assert len(rewards) == 40
     for first in (0, 20):
         assert rewards[first] == single[first] and -3.0 <= rewards[first] <= -2.79
@@ -497,11 +493,11 @@ def test_zero_iterations():
 def test_v2_agents_greedy_snapshot_when_burnin_is_tiny():
     """burnin ≤ tw + 1: the frozen copies' ε = 1 − (tw + 1 − burnin)/(total − burnin) < 1, so they act
     greedily (on the net frozen when they were copied) with probability 1 − ε."""
-    from autotune.learner.training import DeepQLearner, _TrainingAgents
+    from autotune.learner.agents import TrainingAgents
 
     config = _small_training_config(other_agents=2, temporal_window=1, learning_steps_burnin=0, learning_steps_total=4)
     brain = DeepQLearner(config, 0)
-    agents = _TrainingAgents(config, brain, np.random.SeedSequence(1))
+    agents = TrainingAgents(config, brain, np.random.SeedSequence(1))
     assert agents.epsilon == 0.5  # 1 − (2 − 0)/(4 − 0)
     x = np.full(config.num_states, 0.5)
     assert agents.act(1, x) == 0  # the ego has made no decision yet: load-time copies, warm-up

@@ -1,0 +1,88 @@
+"""The other agents of a v2 world during training: frozen brain copies that never learn (spec v2 §8.3)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from autotune.learner.brain import BLOCK, DeepQLearner, js_argmax_rows, js_epsilon
+from autotune.learner.config import NUM_ACTIONS, TrainConfig
+from autotune.learner.js_learner import OriginalStream
+from autotune.learner.kernel import numpy_forward_ops
+
+__all__ = ["TrainingAgents"]
+
+
+class TrainingAgents:
+    """The v2 agents during training: frozen brain copies that never learn (spec v2 §8.3).
+
+    Before the ego has made more than tw decisions the load-time copies are in their warm-up
+    (action 0, v2 §13). The copy taken then has ``age = tw + 1``, so its ε is
+    ``min(1, max(ε_min, 1 − (tw + 1 − burnin)/(total − burnin)))`` — 1 for every burnin > tw + 1:
+    uniformly random actions. With a smaller burnin the copies act greedily with probability 1 − ε,
+    on the network frozen at that moment, each with its own temporal window.
+    """
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        brain: DeepQLearner,
+        seed: np.random.SeedSequence,
+        stream: OriginalStream | None = None,
+    ) -> None:
+        self.config = config
+        self.brain = brain
+        self.rng = np.random.default_rng(seed)
+        self._u: list[float] = []
+        self._ui = 0
+        self._stream = stream
+        if stream is not None:  # the copies draw from the same Math.random as everything else
+            self._uniform = stream.uniform  # type: ignore[method-assign]
+        self.tw = config.temporal_window
+        self.epsilon = js_epsilon(
+            self.tw + 1, config.learning_steps_burnin, config.learning_steps_total, config.epsilon_min
+        )
+        self.frozen: Any = None
+        self._hist: np.ndarray | None = None
+
+    def _uniform(self) -> float:
+        i = self._ui
+        if i >= len(self._u):
+            self._u = self.rng.random(BLOCK).tolist()
+            i = 0
+        self._ui = i + 1
+        return self._u[i]
+
+    def act(self, car: int, inputs: np.ndarray) -> int:
+        if self.brain.forward_passes <= self.tw:
+            return 0  # load-time copies, warm-up branch
+        rf = self._uniform()
+        if rf < self.epsilon:  # always when ε = 1
+            return int(5.0 * self._uniform())
+        return self._greedy(car, inputs)
+
+    def _greedy(self, car: int, inputs: np.ndarray) -> int:
+        brain = self.brain
+        S = brain.num_states
+        step = S + NUM_ACTIONS
+        if self.frozen is None:
+            import copy
+
+            dtype = brain._hist.dtype
+            self.frozen = numpy_forward_ops(copy.deepcopy(brain.module), brain.layers, dtype)
+            self._hist = np.tile(brain._hist, (self.config.other_agents + 1, 1))
+        hist = self._hist[car]  # type: ignore[index]
+        x = np.concatenate([np.asarray(inputs, dtype=hist.dtype), hist])
+        if self._stream is not None:
+            self._stream.vol(self.config.net_inputs)
+        h = x
+        for op in self.frozen:
+            h = op(h)
+        action = int(js_argmax_rows(h[None, :])[0])
+        if self.tw:
+            hist[step:] = hist[:-step].copy()
+            hist[:S] = inputs
+            hist[S:step] = 0.0
+            hist[S + action] = float(S)
+        return action

@@ -13,9 +13,11 @@
   uses Park–Miller seed ``seed + i``), stepped as one batch.
 
 The sequential protocols call a policy's compiled twin inside the simulation loop when it has
-one (``policy.compiled``/``policy.pstate``); otherwise the policy is called from Python once per
-decision, which is exact but slower. ``wall_seconds`` starts after the compiled functions on the
-path are loaded (or compiled, on a cold cache), so it measures simulation, not numba.
+one (``policy.compiled``/``policy.pstate``), or the policy's own compiled driver of the world when
+it has one (the hook ``policy.run_world(sim, max_runs)``: a cached, specialised loop, e.g. a
+trained net's brain); otherwise the policy is called from Python once per decision, which is exact
+but slower. ``wall_seconds`` starts after the compiled functions on the path are loaded (or
+compiled, on a cold cache), so it measures simulation, not numba.
 """
 
 from __future__ import annotations
@@ -210,7 +212,8 @@ def evaluate(
             sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
         return sim
 
-    python_driven = builtin is None and not (sequential and compiled is not None)
+    run_world = getattr(policy, "run_world", None)  # the policy's own (cached) compiled single-world driver
+    python_driven = builtin is None and not (sequential and (compiled is not None or run_world is not None))
     # load (or compile) the compiled functions on the path before the clock starts, without calling
     # the policy, so timings measure simulation; a compiled twin passed as an argument cannot be
     # cached and compiles inside the clock
@@ -229,6 +232,8 @@ def evaluate(
         while not sim.done:
             if builtin is not None:
                 builtin.run(sim, max_runs=chunk)
+            elif run_world is not None:
+                run_world(sim, chunk)
             else:
                 sim.run_compiled(compiled, policy.pstate, max_runs=chunk)  # type: ignore[attr-defined]
             if progress:

@@ -47,7 +47,6 @@ Usage::
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
 import numpy as np
@@ -58,12 +57,12 @@ from autotune.convnet.netjson import NetSettings, validate
 from autotune.convnet.spec import NUM_ACTIONS, ConvNet
 from sim import engine
 from sim.config import ConfigError, EngineConfig
-from sim.layout import I_DONE, I_RUNS_DONE
-from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, _resolve, evaluate
+from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, evaluate
 from sim.rng import mrand, mulberry32_advance
 from sim.simulator import Simulator
 
 MAX_BRAINS = 11  # the ego + up to 10 agents
+SEQUENTIAL_PROTOCOLS = ("v2-official", "v1-original", "v1-distribution")  # one world: the brain's own driver
 V1_LOAD_DRAWS = 60  # loading the v1 engine constructs 20 cars, 3 draws each
 
 # gcfg (int64) fields
@@ -262,6 +261,14 @@ class BrainPolicy:
 
     compiled = staticmethod(brain_policy)
 
+    def run_world(self, sim: Simulator, max_runs: int) -> None:
+        """``sim.protocols.evaluate``'s driver hook: world 0 for up to ``max_runs`` runs in the cached ``run_brain``."""
+        obs = np.zeros(sim.config.num_inputs)
+        run_brain(
+            sim.cars, sim.grid, sim.fs, sim.ints, sim.mrand, sim.cfg, 0, self.pstate, obs,
+            sim.scores, sim.ego_scores, sim.run_seeds, max_runs,
+        )  # fmt: skip
+
     def reset(self, n_worlds: int = 1, caches: np.ndarray | None = None) -> None:
         """Fresh brains (no history, ``forward_passes = 0``) for ``n_worlds`` worlds."""
         window = int(self.gcfg[G_WINDOW])
@@ -421,74 +428,17 @@ def evaluate_net(
     proto = PROTOCOLS.get(protocol)
     n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
     stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
-    if protocol not in ("v2-official", "v1-original", "v1-distribution"):
-        return evaluate(
-            config,
-            policy,
-            protocol,
-            seed=seed,
-            runs=runs,
-            frames=frames,
-            threads=threads,
-            stream_state=stream_state,
-            policy_name=policy.name,
-            progress=progress,
-        )
-    return _evaluate_sequential(config, policy, protocol, seed, runs, frames, stream_state, progress)
-
-
-def _evaluate_sequential(
-    config: EngineConfig,
-    policy: BrainPolicy,
-    protocol: str,
-    seed: int | None,
-    runs: int | None,
-    frames: int | None,
-    stream_state: int | None,
-    progress: ProgressFn | None,
-) -> EvalResult:
-    """``sim.protocols.evaluate``'s sequential path (one world), driven by the cached ``run_brain``."""
-    proto, runs, frames = _resolve(config, protocol, runs, frames)
-    seed = proto.seed if seed is None else seed
-    start = time.perf_counter()
-    sim = Simulator(config, 1, frames, runs)
-    if protocol == "v1-distribution":
-        sim.seed_per_run([seed + i for i in range(runs)])
-    else:
-        sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
-    obs = np.zeros(config.num_inputs)
-    chunk = max(1, 200_000 // frames)
-    while sim.ints[0, I_DONE] == 0:
-        run_brain(
-            sim.cars,
-            sim.grid,
-            sim.fs,
-            sim.ints,
-            sim.mrand,
-            sim.cfg,
-            0,
-            policy.pstate,
-            obs,
-            sim.scores,
-            sim.ego_scores,
-            sim.run_seeds,
-            chunk,
-        )
-        if progress:
-            progress(int(sim.ints[0, I_RUNS_DONE]) * frames, runs * frames)
-    wall = time.perf_counter() - start
-    return EvalResult(
-        protocol=protocol,
-        ruleset=config.ruleset,
-        policy=policy.name,
+    return evaluate(
+        config,
+        policy,
+        protocol,
         seed=seed,
         runs=runs,
         frames=frames,
-        other_agents=config.other_agents,
-        scores=sim.scores.reshape(-1).tolist(),
-        ego_scores=sim.ego_scores.reshape(-1).tolist(),
-        wall_seconds=wall,
-        official_size=(runs == proto.runs and frames == proto.frames),
+        threads=threads if protocol not in SEQUENTIAL_PROTOCOLS else None,  # one world: numba threads unused
+        stream_state=stream_state,
+        policy_name=policy.name,
+        progress=progress,
     )
 
 

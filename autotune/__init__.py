@@ -15,6 +15,10 @@ from typing import Any
 _EXPORTS: dict[str, str] = {
     # training configuration
     "ConfigError": "sim.config",
+    # the DeepTraffic fields: one table (name, alias, type, range, defaults, doc)
+    "FIELDS": "sim.fields",
+    "Field": "sim.fields",
+    "field_bounds": "sim.fields:bounds",
     "TrainConfig": "autotune.learner.config",
     "PRESETS": "autotune.learner.config",
     "preset": "autotune.learner.config",

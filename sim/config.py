@@ -12,15 +12,12 @@ import difflib
 from collections.abc import Mapping
 from typing import Any
 
+from sim import fields
+
 RULESETS = ("v1", "v2")
 
-# DeepTraffic's global names → ours.
-CAMEL_ALIASES = {
-    "lanesSide": "lanes_side",
-    "patchesAhead": "patches_ahead",
-    "patchesBehind": "patches_behind",
-    "otherAgents": "other_agents",
-}
+# DeepTraffic's global names → ours (the engine's four; ``sim.fields`` is the one table).
+CAMEL_ALIASES = {f.alias: f.name for f in fields.group("engine") if f.alias}
 
 
 def input_size(lanes_side: int, patches_ahead: int, patches_behind: int) -> int:
@@ -57,12 +54,8 @@ class EngineConfig:
     def __post_init__(self) -> None:
         if self.ruleset not in RULESETS:
             raise ConfigError(f"ruleset: '{self.ruleset}' is not a ruleset; use one of {', '.join(RULESETS)}")
-        for name, lo, hi in (
-            ("lanes_side", 0, 50),
-            ("patches_ahead", 0, 70),
-            ("patches_behind", 0, 70),
-            ("other_agents", 0, 10),
-        ):
+        for f in fields.group("engine"):
+            name, lo, hi = f.name, int(f.low), int(f.high)
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int):
                 raise ConfigError(f"{name}: must be an integer, got {value!r}")

@@ -51,6 +51,7 @@ from autotune.convnet.spec import (
     layer_type,
     net_input_size,
 )
+from sim import fields
 from sim.config import input_size
 
 SUPPORTED_TYPES = ("input", "fc", "relu", "tanh", "sigmoid", "maxout", "dropout", "svm", "softmax", "regression", "lrn")
@@ -99,15 +100,7 @@ def js_num(x: float) -> str:
 # --------------------------------------------------------------------------------------------
 
 # deepqlearn defaults when a key is absent (engine_spec.md §10.1)
-DEEPQLEARN_DEFAULTS = {
-    "temporal_window": 1,
-    "experience_size": 30000,
-    "gamma": 0.8,
-    "learning_steps_total": 100000,
-    "learning_steps_burnin": 3000,
-    "epsilon_min": 0.05,
-    "epsilon_test_time": 0.01,
-}
+DEEPQLEARN_DEFAULTS = {f.name: f.deepqlearn_default for f in fields.group("opt") if f.deepqlearn_default is not None}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,24 +148,7 @@ class NetSettings:
 
 # config key (camelCase as in config.json / net.js, or snake_case) → (field, kind)
 _CONFIG_FIELDS: dict[str, tuple[str, str]] = {
-    "lanesSide": ("lanes_side", "int0"),
-    "patchesAhead": ("patches_ahead", "int0"),
-    "patchesBehind": ("patches_behind", "int0"),
-    "otherAgents": ("other_agents", "int0"),
-    "trainIterations": ("train_iterations", "int0"),
-    "temporal_window": ("temporal_window", "int0"),
-    "experience_size": ("experience_size", "int0"),
-    "start_learn_threshold": ("start_learn_threshold", "int0"),
-    "gamma": ("gamma", "float"),
-    "learning_steps_total": ("learning_steps_total", "int0"),
-    "learning_steps_burnin": ("learning_steps_burnin", "int0"),
-    "epsilon_min": ("epsilon_min", "float"),
-    "epsilon_test_time": ("epsilon_test_time", "float"),
-    "learning_rate": ("learning_rate", "float"),
-    "momentum": ("momentum", "float"),
-    "batch_size": ("batch_size", "int0"),
-    "l2_decay": ("l2_decay", "float"),
-    "l1_decay": ("l1_decay", "float"),
+    **{f.alias or f.name: (f.name, "int0" if f.kind is int else "float") for f in fields.FIELDS},
     "trainer_method": ("trainer_method", "str"),
     "method": ("trainer_method", "str"),
     "engine_version": ("engine_version", "str"),
@@ -215,9 +191,7 @@ def settings_from_config(cfg: dict[str, Any], where: str = "config") -> NetSetti
         values[field] = _check_value(f"{where}.{key}", value, kind)
     for name in _REQUIRED:
         if name not in values:
-            camel = {"lanes_side": "lanesSide", "patches_ahead": "patchesAhead", "patches_behind": "patchesBehind"}[
-                name
-            ]
+            camel = fields.field(name).alias
             raise NetFormatError(f"{where}.{camel}: missing (required to size the input)")
     if values["patches_ahead"] + values["patches_behind"] < 1:
         raise NetFormatError(f"{where}.patchesAhead: patchesAhead + patchesBehind must be ≥ 1")

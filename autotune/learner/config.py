@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from autotune.convnet import spec
+from sim import fields
 from sim.config import RULESETS, ConfigError, EngineConfig, input_size, nearest_key_error
 
 __all__ = [
@@ -60,31 +61,19 @@ DTYPES = ("float32", "float64")
 ACTIVATIONS = ("relu", "tanh", "sigmoid", "maxout", "softmax", "linear")
 
 # DeepTraffic's global names (and the crowd CSV's column names) → field names.
-CAMEL_ALIASES = {
-    "lanesSide": "lanes_side",
-    "patchesAhead": "patches_ahead",
-    "patchesBehind": "patches_behind",
-    "otherAgents": "other_agents",
-    "trainIterations": "train_iterations",
-    "hidden_layers": "layers",
-    "trainer_method": "method",
-}
+CAMEL_ALIASES = {**fields.ALIASES, "hidden_layers": "layers", "trainer_method": "method"}
 # Keys of a nested (net.js-style) mapping that are documentation, not configuration.
 IGNORED_KEYS = ("_comment", "comment", "description", "name")
 
 # deepqlearn library defaults for keys absent from ``opt`` (spec §10.1).
+# (start_learn_threshold: ⌊min(0.1·experience_size, 1000)⌋, computed from the experience size)
 DEEPQLEARN_OPT_DEFAULTS: dict[str, Any] = {
-    "temporal_window": 1,
-    "experience_size": 30000,
-    # start_learn_threshold: ⌊min(0.1·experience_size, 1000)⌋, computed from the experience size
-    "gamma": 0.8,
-    "learning_steps_total": 100000,
-    "learning_steps_burnin": 3000,
-    "epsilon_min": 0.05,
-    "epsilon_test_time": 0.01,
+    f.name: f.deepqlearn_default for f in fields.group("opt") if f.deepqlearn_default is not None
 }
 # deepqlearn's own tdtrainer_options when the user passes none.
-BRAIN_TRAINER_DEFAULTS: dict[str, Any] = {"learning_rate": 0.01, "momentum": 0.0, "batch_size": 64, "l2_decay": 0.01}
+BRAIN_TRAINER_DEFAULTS: dict[str, Any] = {
+    f.name: f.deepqlearn_default for f in fields.group("trainer") if f.deepqlearn_default is not None
+}
 # convnetjs Trainer defaults for keys missing from a given tdtrainer_options object.
 TRAINER_DEFAULTS: dict[str, Any] = {
     "learning_rate": 0.01,
@@ -272,19 +261,7 @@ class TrainConfig:
         object.__setattr__(self, "layers", parse_layers(self.layers))
         if self.ruleset not in RULESETS:
             raise ConfigError(f"ruleset: '{self.ruleset}' is not a ruleset; use one of {', '.join(RULESETS)}")
-        ints = (
-            ("lanes_side", 0, 50),
-            ("patches_ahead", 0, 70),
-            ("patches_behind", 0, 70),
-            ("other_agents", 0, 10),
-            ("train_iterations", 0, 100_000_000),
-            ("temporal_window", 0, 100),
-            ("experience_size", 1, 2_000_000),
-            ("start_learn_threshold", 0, 2_000_000),
-            ("learning_steps_total", 0, 1_000_000_000),
-            ("learning_steps_burnin", 0, 1_000_000_000),
-            ("batch_size", 1, 4096),
-        )
+        ints = [(f.name, int(f.low), int(f.high)) for f in fields.FIELDS if f.kind is int]
         for name, lo, hi in ints:
             value = getattr(self, name)
             if isinstance(value, float) and value.is_integer():
@@ -294,16 +271,7 @@ class TrainConfig:
                 raise ConfigError(f"{name}: must be an integer in {lo}–{hi:,}, got {value!r}")
             if not lo <= value <= hi:
                 raise ConfigError(f"{name}: {value} is out of range; allowed {lo}–{hi:,}")
-        floats = (
-            ("gamma", 0.0, 1.0),
-            ("epsilon_min", 0.0, 1.0),
-            ("epsilon_test_time", 0.0, 1.0),
-            ("learning_rate", 0.0, 10.0),
-            ("momentum", 0.0, 1.0),
-            ("l2_decay", 0.0, 10.0),
-            ("l1_decay", 0.0, 10.0),
-            ("ro", 0.0, 1.0),
-        )
+        floats = [(f.name, f.low, f.high) for f in fields.FIELDS if f.kind is float] + [("ro", 0.0, 1.0)]
         for name, flo, fhi in floats:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -560,24 +528,10 @@ def load_toml(path: str | Path) -> TrainConfig:
 # presets (the reference configurations of learner_scores.json / learner_scores_v2.json)
 # --------------------------------------------------------------------------------------------
 
+# the game page's sample net (other_agents and l1_decay: the page sets neither, 0 applies)
 _DEFAULT_TEMPLATE: dict[str, Any] = {
-    "lanes_side": 0,
-    "patches_ahead": 1,
-    "patches_behind": 0,
-    "train_iterations": 10000,
-    "temporal_window": 3,
+    **{f.name: f.page_default for f in fields.FIELDS if f.name not in ("other_agents", "l1_decay")},
     "layers": "fc:1:relu",
-    "learning_rate": 0.001,
-    "momentum": 0.0,
-    "batch_size": 64,
-    "l2_decay": 0.01,
-    "experience_size": 3000,
-    "start_learn_threshold": 500,
-    "gamma": 0.7,
-    "learning_steps_total": 10000,
-    "learning_steps_burnin": 1000,
-    "epsilon_min": 0.0,
-    "epsilon_test_time": 0.0,
 }
 _NETWORK_BASIC: dict[str, Any] = {
     **_DEFAULT_TEMPLATE,

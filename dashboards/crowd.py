@@ -1,0 +1,242 @@
+"""The crowd as an Optuna study: one COMPLETE trial per scored submission, under the search's parameter names.
+
+So that optuna-dashboard and the report read the crowd exactly like an automated study, each
+submission's settings are encoded under the parameter names the search spaces use (contract:
+``lanes_side`` … ``one_minus_gamma`` …, ``n_layers``, ``neurons_i``, ``activation_i``), its value
+is the self-reported score and its provenance goes into user attributes. Unscored submissions and
+the two whose settings our learner refuses are skipped (Optuna needs a value for a COMPLETE trial;
+a FAIL trial would read as "the setting crashed"), and the import says how many and why.
+Importing again adds only the submissions not yet in the study.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import optuna
+from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
+
+from autotune.convnet import spec
+from autotune.learner.config import TrainConfig
+from dashboards import crowd_data as cd
+
+__all__ = [
+    "CROWD_STUDY",
+    "REPLAY_STUDY",
+    "ACTIVATION_CHOICES",
+    "ImportResult",
+    "encode_params",
+    "distributions",
+    "crowd_trials",
+    "import_crowd",
+    "crowd_study",
+    "submission_order",
+]
+
+CROWD_STUDY = "crowd"
+REPLAY_STUDY = "crowd-replay"
+OWN_NET_SCORES = "own_net_scores"  # study user attr: {crowd id: {score, protocol, mean, std, runs}}
+ACTIVATION_CHOICES = ("relu", "tanh", "sigmoid", "maxout", "linear", "svm")
+
+# name -> (kind, low, high, log): bounds wide enough for every valid TrainConfig; log only when all values > 0.
+_BOUNDS: dict[str, tuple[str, float, float, bool]] = {
+    "lanes_side": ("int", 0, 50, False),
+    "patches_ahead": ("int", 0, 70, False),
+    "patches_behind": ("int", 0, 70, False),
+    "other_agents": ("int", 0, 10, False),
+    "temporal_window": ("int", 0, 100, False),
+    "train_iterations": ("int", 1, 100_000_000, True),
+    "experience_size": ("int", 1, 2_000_000, True),
+    "start_learn_threshold": ("int", 0, 2_000_000, False),
+    "batch_size": ("int", 1, 4096, True),
+    "learning_rate": ("float", 1e-10, 10.0, True),
+    "l2_decay": ("float", 0.0, 10.0, False),
+    "momentum": ("float", 0.0, 1.0, False),
+    "one_minus_gamma": ("float", 1e-6, 1.0, True),
+    "learning_steps_total": ("int", 0, 1_000_000_000, False),
+    "learning_steps_burnin": ("int", 0, 1_000_000_000, False),
+    "epsilon_min": ("float", 0.0, 1.0, False),
+    "epsilon_test_time": ("float", 0.0, 1.0, False),
+    "n_layers": ("int", 0, 16, False),
+    "neurons": ("int", 1, 4096, True),
+}
+
+
+def encode_params(config: TrainConfig) -> dict[str, Any]:
+    """A config's settings under the search's parameter names, in sampling coordinates (γ as 1 − γ).
+
+    Layers: each layer with neurons counts (``fc:n:act`` → neurons n, its activation or 'linear';
+    ``svm:n`` → neurons n, activation 'svm'); ``lrn`` has no neurons and is not a parameter.
+    """
+    params: dict[str, Any] = {
+        name: getattr(config, name)
+        for name in _BOUNDS
+        if name not in ("one_minus_gamma", "n_layers", "neurons") and name != "other_agents"
+    }
+    if config.ruleset == "v2":
+        params["other_agents"] = config.other_agents
+    params["one_minus_gamma"] = float(f"{1.0 - config.gamma:.15g}")  # as search.space.encode: 0.3 stays 0.3
+    layers = [layer for layer in config.layers if isinstance(layer, (spec.FC, spec.SVM))]
+    params["n_layers"] = len(layers)
+    for i, layer in enumerate(layers):
+        if isinstance(layer, spec.FC):
+            params[f"neurons_{i}"] = layer.num_neurons
+            act = layer.activation if layer.activation in ACTIVATION_CHOICES else "linear"
+            params[f"activation_{i}"] = act
+        else:
+            params[f"neurons_{i}"] = layer.num_classes
+            params[f"activation_{i}"] = "svm"
+    return params
+
+
+def distributions(all_params: Iterable[dict[str, Any]]) -> dict[str, BaseDistribution]:
+    """One distribution per parameter name, covering every value given (a log scale only where all are > 0)."""
+    values: dict[str, list[Any]] = {}
+    for params in all_params:
+        for name, value in params.items():
+            values.setdefault(name, []).append(value)
+    out: dict[str, BaseDistribution] = {}
+    for name, vals in values.items():
+        if name.startswith("activation_"):
+            out[name] = CategoricalDistribution(ACTIVATION_CHOICES)
+            continue
+        kind, low, high, log = _BOUNDS["neurons" if name.startswith("neurons_") else name]
+        low, high = min(low, min(vals)), max(high, max(vals))
+        log = log and low > 0
+        if kind == "int":
+            out[name] = IntDistribution(int(low), int(high), log=log)
+        else:
+            out[name] = FloatDistribution(float(low), float(high), log=log)
+    return out
+
+
+def submission_order(subs: Sequence[cd.Submission]) -> list[cd.Submission]:
+    """Submissions in the order people made them: by version date (undated last), then id."""
+    return sorted(subs, key=lambda s: (s.version_date is None, s.version_date or dt.date.min, s.id))
+
+
+@dataclasses.dataclass(frozen=True)
+class ImportResult:
+    """What ``import_crowd`` did: trials added, already present, and skipped submissions with the reason."""
+
+    study_name: str
+    added: int
+    existing: int
+    skipped: dict[str, str]
+
+
+def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | None) -> dict[str, Any]:
+    attrs: dict[str, Any] = {
+        "source": "crowd",
+        "crowd_id": sub.id,
+        "id": sub.id,
+        "repo": sub.repo,
+        "path": sub.path,
+        "commit": sub.commit,
+        "version_date": sub.version_date.isoformat() if sub.version_date else None,
+        "score_kind": sub.score_kind,
+        "score_confidence": sub.score_confidence,
+        "score_source": sub.score_source,
+        "engine_version": sub.engine_version,
+        "trainer_method": sub.trainer_method,
+        "hidden_layers": sub.hidden_layers,
+        "is_default_template": sub.is_default_template,
+        "same_config_as": sub.same_config_as,
+        "has_weights": sub.has_weights,
+        "in_nets_dir": sub.in_nets_dir,
+        "config": config.to_mapping(),
+        "settings": config.to_deepqlearn(),
+        "input_size": config.net_inputs,
+        "num_states": config.num_states,
+        "param_count": cd.param_count(config),
+        "frames_simulated": cd.frames_estimate(sub) or cd.FRAMES_PER_ITERATION * config.train_iterations,
+        "official_protocol": {"v1": "v1-original", "v2": "v2-official"}[sub.engine_version],
+    }
+    if own is not None:
+        attrs["own_net_score"] = own["score"]
+        attrs["own_net_protocol"] = own["protocol"]
+    return attrs
+
+
+def crowd_trials(
+    subs: Sequence[cd.Submission] | None = None, own_net_scores: dict[str, dict[str, Any]] | None = None
+) -> tuple[list[optuna.trial.FrozenTrial], dict[str, str]]:
+    """COMPLETE trials for the scored submissions in submission order, and {id: reason} for those skipped."""
+    subs = cd.load_submissions() if subs is None else subs
+    kept: list[tuple[cd.Submission, TrainConfig, dict[str, Any]]] = []
+    skipped: dict[str, str] = {}
+    for sub in submission_order(subs):
+        if sub.reported_score_mph is None:
+            skipped[sub.id] = "no reported score"
+            continue
+        try:
+            config = cd.train_config(sub)
+        except cd.CrowdDataError as exc:
+            skipped[sub.id] = str(exc).removeprefix(f"{sub.id}: ")
+            continue
+        kept.append((sub, config, encode_params(config)))
+    dists = distributions(p for _s, _c, p in kept)
+    trials = []
+    now = dt.datetime.now()  # Optuna needs a start time; undated rows get the import's (version_date stays None)
+    for sub, config, params in kept:
+        when = dt.datetime.combine(sub.version_date, dt.time()) if sub.version_date else now
+        trials.append(
+            optuna.trial.FrozenTrial(
+                number=0,
+                state=optuna.trial.TrialState.COMPLETE,
+                value=sub.reported_score_mph,
+                datetime_start=when,
+                datetime_complete=when,
+                params=params,
+                distributions={k: dists[k] for k in params},
+                user_attrs=_user_attrs(sub, config, (own_net_scores or {}).get(sub.id)),
+                system_attrs={},
+                intermediate_values={},
+                trial_id=0,
+            )
+        )
+    return trials, skipped
+
+
+def import_crowd(
+    storage: str | optuna.storages.BaseStorage | None,
+    study_name: str = CROWD_STUDY,
+    own_net_scores: dict[str, dict[str, Any]] | None = None,
+) -> tuple[optuna.Study, ImportResult]:
+    """Write the crowd into ``study_name`` (created if absent, direction maximize); adds only missing submissions.
+
+    ``own_net_scores`` ({id: {score, protocol, …}}) are merged into the study's ``own_net_scores``
+    user attribute and set on the trials created now.
+    """
+    study = optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
+    if study.direction != optuna.study.StudyDirection.MAXIMIZE:
+        raise ValueError(f"study {study_name!r} exists and minimizes; the crowd's scores are maximized")
+    present = {t.user_attrs.get("crowd_id") for t in study.get_trials(deepcopy=False)}
+    trials, skipped = crowd_trials(own_net_scores=own_net_scores)
+    new = [t for t in trials if t.user_attrs["crowd_id"] not in present]
+    study.add_trials(new)
+    study.set_user_attr("source", "crowd")
+    study.set_user_attr("skipped", skipped)
+    if own_net_scores:
+        merged = {**study.user_attrs.get(OWN_NET_SCORES, {}), **own_net_scores}
+        study.set_user_attr(OWN_NET_SCORES, merged)
+    return study, ImportResult(study_name, len(new), len(trials) - len(new), skipped)
+
+
+def crowd_study(storage: str | optuna.storages.BaseStorage | None = None) -> optuna.Study:
+    """The crowd study from ``storage`` if it holds one named 'crowd', else built in memory from the package data."""
+    if storage is not None:
+        try:
+            return optuna.load_study(study_name=CROWD_STUDY, storage=storage)
+        except KeyError:
+            pass
+    return import_crowd(optuna.storages.InMemoryStorage(), CROWD_STUDY)[0]
+
+
+def finite(value: Any) -> bool:
+    """A real, finite number (not None, NaN or a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

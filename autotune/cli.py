@@ -18,6 +18,7 @@ EXIT_USAGE = 2
 SUBCOMMANDS: tuple[str, ...] = (
     "autotune.commands.train",
     "autotune.commands.evaluate",
+    "autotune.search.inspect_cli",
 )
 
 

@@ -1,0 +1,172 @@
+"""``autotune status | best | dashboard``: look at a study while it runs or after it ended (read-only).
+
+    autotune status STUDY [--storage URL] [--json]
+    autotune best STUDY [--storage URL] [--export DIR] [--json]
+    autotune dashboard [STUDY] [--storage URL] [--port N]
+
+``--storage`` is what ``autotune launch`` was given ('' = the embedded runs/<study>/journal.log);
+``--artifacts DIR`` where the trained networks were stored when that was not the default.
+``dashboard`` serves optuna-dashboard on 127.0.0.1 with the study's artifact store attached (trained
+nets and net.js downloadable per trial) until Ctrl-C. Bad input (unknown study — the studies the
+storage holds are listed —, unreachable storage): one line on stderr, exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socketserver
+import sys
+from typing import Any
+from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
+
+EXIT_USAGE = 2
+EXIT_NO_RECORD = 1  # the study exists but has nothing to show yet
+DEFAULT_PORT = 8080
+
+COMMANDS = ("status", "best", "dashboard")
+
+
+def _storage_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--storage", default="", help="journal file or SQLAlchemy URL (default: runs/<study>/journal.log)")
+    p.add_argument("--artifacts", help="artifact directory of the study (default: beside the journal / runs/<study>/)")
+
+
+def add_parser(subparsers: Any) -> None:
+    """``autotune status``, ``autotune best`` and ``autotune dashboard``: options, help and ``func=run``."""
+    p = subparsers.add_parser(
+        "status",
+        help="a study's trial counts by state, best trial and throughput",
+        description="Counts by trial state, the best trial, and throughput (trials/h, frames/s) of a study.",
+    )
+    p.add_argument("study", help="study name")
+    _storage_args(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run, inspect="status")
+
+    p = subparsers.add_parser(
+        "best",
+        help="the best trial's settings and score; --export writes its net.json, net.config.json, net.js",
+        description="The best trial's score, settings and seed; --export DIR writes its trained network "
+        "(net.json + net.config.json) and the site-ready net.js.",
+    )
+    p.add_argument("study", help="study name")
+    _storage_args(p)
+    p.add_argument("--export", metavar="DIR", help="write net.json, net.config.json and net.js into DIR")
+    p.add_argument("--json", action="store_true", help="print the trial record as one JSON object")
+    p.set_defaults(func=run, inspect="best")
+
+    p = subparsers.add_parser(
+        "dashboard",
+        help="serve optuna-dashboard on 127.0.0.1 for a study's storage (artifacts attached)",
+        description="Start optuna-dashboard on 127.0.0.1 for the storage, with the artifact store attached; "
+        "serves until Ctrl-C.",
+    )
+    p.add_argument("study", nargs="?", default="", help="study name (locates the embedded storage and artifacts)")
+    _storage_args(p)
+    p.add_argument(
+        "--port", type=int, default=DEFAULT_PORT, help=f"port on 127.0.0.1 (default {DEFAULT_PORT}; 0: any free port)"
+    )
+    p.set_defaults(func=run, inspect="dashboard")
+
+
+def _open(args: argparse.Namespace, study: str) -> Any:
+    from autotune.search.storage import open_storage
+
+    return open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts)
+
+
+def _status(args: argparse.Namespace) -> int:
+    from autotune.search.records import format_summary, study_summary
+
+    summary = study_summary(_open(args, args.study), args.study)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print("\n".join(format_summary(summary)))
+    return 0
+
+
+def _best(args: argparse.Namespace) -> int:
+    from autotune.search.records import best_trial_record, export_best
+
+    storages = _open(args, args.study)
+    record = best_trial_record(storages, args.study)
+    paths = export_best(storages, args.study, args.export) if args.export else {}
+    if args.json:
+        record["exported"] = {name: str(path) for name, path in paths.items()}
+        print(json.dumps(record))
+        return 0
+    print(
+        f"best trial {record['number']} of {args.study}: {record['value']:.2f} mph "
+        f"({record.get('official_protocol', 'official')}), seed {record.get('seed')}, "
+        f"{record.get('param_count', '?')} parameters"
+    )
+    for key, value in record["params"].items():
+        print(f"  {key} = {value}")
+    config = record.get("config", {})
+    if config:
+        print("config: " + json.dumps(config))
+    for name, path in paths.items():
+        print(f"wrote {path}" + (" (paste into the DeepTraffic page)" if name == "net.js" else ""))
+    return 0
+
+
+class _QuietHandler(WSGIRequestHandler):
+    def log_message(self, format: str, *args: Any) -> None:  # no access log on the terminal
+        pass
+
+
+class _ThreadingWSGIServer(socketserver.ThreadingMixIn, WSGIServer):
+    """wsgiref's server, one thread per request (the dashboard's page fires many API calls at once)."""
+
+    daemon_threads = True
+
+
+def _dashboard(args: argparse.Namespace) -> int:
+    import optuna_dashboard
+
+    from autotune.search.storage import StorageError, load_study
+
+    if not args.storage and not args.study:
+        raise StorageError("dashboard: give a STUDY (its embedded storage runs/<study>/) or --storage URL")
+    if not 0 <= args.port < 65536:
+        raise StorageError(f"--port: {args.port} is not a TCP port (1–65535, or 0 for any free one)")
+    storages = _open(args, args.study or "default")
+    if args.study:
+        load_study(storages, args.study)  # an unknown name fails now, listing the storage's studies
+    app = optuna_dashboard.wsgi(storages.storage, artifact_store=storages.artifacts)
+    try:
+        server = make_server(
+            "127.0.0.1", args.port, app, server_class=_ThreadingWSGIServer, handler_class=_QuietHandler
+        )
+    except OSError as exc:  # e.g. the port is taken
+        raise StorageError(
+            f"dashboard: cannot listen on 127.0.0.1:{args.port} ({exc.strerror or exc}); try --port"
+        ) from None
+    url = f"http://127.0.0.1:{server.server_port}/"
+    if args.study:
+        url += f"dashboard/studies/{storages.storage.get_study_id_from_name(args.study)}"
+    print(f"optuna-dashboard for {storages.url} (artifacts {storages.artifact_dir}): {url}  (Ctrl-C to stop)")
+    sys.stdout.flush()
+    with server:
+        try:
+            server.serve_forever()
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the chosen inspection; 0, 1 when there is no record to show yet, 2 after a one-line error."""
+    from autotune.search.records import RecordError
+    from sim.config import ConfigError
+
+    try:
+        return {"status": _status, "best": _best, "dashboard": _dashboard}[args.inspect](args)
+    except RecordError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_NO_RECORD
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE

@@ -1,0 +1,186 @@
+"""The search space as a pure function of the trial: sample, decode to a TrainConfig, encode back.
+
+``sample(trial, spec)`` uses only ``trial.suggest_int / suggest_float / suggest_categorical``
+(duck typing: this module does not import optuna), so the same code serves an Optuna trial, a
+fixed-params trial or a test double. Params are in sampling coordinates — ``one_minus_gamma``
+on a log scale instead of gamma, the layout as ``n_layers`` then ``neurons_i`` / ``activation_i``
+for i < n_layers (define-by-run) — and ``to_config`` turns them into the real TrainConfig;
+``encode`` is the inverse, so crowd submissions enter a study under the same names.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import Any, Protocol
+
+from autotune import TrainConfig, format_hidden, layer_sizes
+from autotune.convnet import spec as netspec
+from autotune.search.spec import LAYOUT, Dimension, SpecError, StudySpec, build_config
+
+__all__ = ["DEFAULT_SPACE", "Trial", "sample", "to_config", "encode", "param_count", "outside"]
+
+
+class Trial(Protocol):
+    """What ``sample`` needs of a trial (Optuna's ``Trial`` has it)."""
+
+    def suggest_int(self, name: str, low: int, high: int, *, step: int = 1, log: bool = False) -> int: ...
+
+    def suggest_float(
+        self, name: str, low: float, high: float, *, step: float | None = None, log: bool = False
+    ) -> float: ...
+
+    def suggest_categorical(self, name: str, choices: Any) -> Any: ...
+
+
+# The paper's full space (Table 1 + the layout), as [space] entries (paper.toml spells out the same).
+# Bounds cover what the crowd explored (shared/crowd/submissions.csv, 164 rows, min–max of each column
+# in brackets) within what the site accepts (sim.fields); log scales where the crowd spans decades.
+DEFAULT_SPACE: dict[str, dict[str, Any]] = {
+    # crowd 0–50, but 162/164 rows ≤ 10 and two at 50: the road has 7 lanes, so beyond 6 a net only
+    # sees off-road zeros (lanes_side 50 is lanes_side 6 plus dead inputs); 10 covers all but those two.
+    "lanes_side": {"low": 0, "high": 10},
+    "patches_ahead": {"low": 1, "high": 60},  # crowd 1–55; ≥ 1 so the input is never empty
+    "patches_behind": {"low": 0, "high": 20},  # crowd 0–20
+    "other_agents": {"low": 0, "high": 10},  # crowd 0–10 (v2 files); the site's maximum is 10
+    "temporal_window": {"low": 0, "high": 10},  # crowd 0–10
+    "train_iterations": {"low": 5_000, "high": 1_000_000, "log": True},  # crowd 5,000–1,000,000
+    "experience_size": {"low": 1_000, "high": 500_000, "log": True},  # crowd 1,000–500,000 (one 0: rejected)
+    # crowd 100–100,000; capped at experience_size − 1 per trial (see autotune.search.spec)
+    "start_learn_threshold": {"low": 100, "high": 100_000, "log": True},
+    "batch_size": {"low": 1, "high": 512, "log": True},  # crowd 1–265
+    "learning_rate": {"low": 1e-8, "high": 1e-2, "log": True},  # crowd 1e-8–0.01 (mode 0.001)
+    "l2_decay": {"low": 1e-8, "high": 1.0, "log": True},  # crowd 1e-8–0.79 (mode 0.01)
+    "momentum": {"low": 0.0, "high": 1.0},  # crowd 0–1 (one 5: rejected by the site's range); mode 0
+    "one_minus_gamma": {"low": 1e-4, "high": 0.7, "log": True},  # crowd gamma 0.3–0.99985
+    "learning_steps_total": {"low": 10_000, "high": 500_000, "log": True},  # crowd 10,000–500,000
+    "learning_steps_burnin": {"low": 100, "high": 100_000, "log": True},  # crowd 300–75,000
+    "epsilon_min": {"low": 0.0, "high": 0.7},  # crowd 0–0.65 (mode 0)
+    "epsilon_test_time": {"low": 0.0, "high": 0.9},  # crowd 0–0.9 (mode 0)
+    "n_layers": {"low": 0, "high": 8},  # crowd 0–8 hidden layers
+    # crowd 1–3000 per layer; low 2 because a 1-neuron maxout layer has no output (the 1-neuron layers
+    # are the page's unscored fc:1:relu template)
+    "neurons": {"low": 2, "high": 4096, "log": True},
+    # crowd: relu, tanh, maxout (+ 2 'softmax' fc activations, which convnetjs ignores: linear);
+    # sigmoid is convnetjs's fourth activation
+    "activation": {"choices": ["relu", "tanh", "sigmoid", "maxout"]},
+}
+
+_FC_RE = re.compile(r"^fc:(\d+)(?::([A-Za-z]+))?$")
+
+
+def sample(trial: Trial, spec: StudySpec) -> dict[str, Any]:
+    """Suggest every [space] parameter of ``spec`` on ``trial``; returns the params (sampling coordinates)."""
+    params: dict[str, Any] = {}
+    dims = spec.dimensions
+    for d in spec.space:
+        if d.name in LAYOUT:
+            if d.name == "n_layers":
+                n = params["n_layers"] = _suggest(trial, d, "n_layers")
+                for i in range(n):
+                    params[f"neurons_{i}"] = _suggest(trial, dims["neurons"], f"neurons_{i}")
+                    params[f"activation_{i}"] = _suggest(trial, dims["activation"], f"activation_{i}")
+            continue
+        params[d.name] = _suggest(trial, d, d.name)
+    return params
+
+
+def _suggest(trial: Trial, d: Dimension, name: str) -> Any:
+    if d.kind == "categorical":
+        return trial.suggest_categorical(name, list(d.choices))
+    assert d.low is not None and d.high is not None
+    if d.kind == "int":
+        return trial.suggest_int(name, int(d.low), int(d.high), step=int(d.step or 1), log=d.log)
+    return trial.suggest_float(name, float(d.low), float(d.high), step=d.step, log=d.log)
+
+
+def to_config(spec: StudySpec, params: Mapping[str, Any]) -> TrainConfig:
+    """The TrainConfig a trial trains: [fixed] ∪ the decoded params (ConfigError if deepqlearn rejects it).
+
+    ``start_learn_threshold`` (unless fixed) is capped at ``experience_size − 1``; gamma is
+    ``1 − one_minus_gamma`` printed to 15 significant digits (so 0.3 stays 0.3 after the round trip).
+    """
+    expected = _param_names(spec, params)
+    unknown = [k for k in params if k not in expected]
+    if unknown:
+        raise SpecError(f"params: {unknown[0]!r} is not a parameter of this space; expected {', '.join(expected)}")
+    missing = [k for k in expected if k not in params]
+    if missing:
+        raise SpecError(f"params: {missing[0]!r} is missing; sample() gives every parameter of the space")
+    values = spec.fixed_values
+    for d in spec.space:
+        if d.name in LAYOUT:
+            continue
+        if d.name == "one_minus_gamma":
+            values["gamma"] = float(f"{1.0 - params['one_minus_gamma']:.15g}")
+        else:
+            values[d.name] = params[d.name]
+    if spec.searches_layout:
+        n = params["n_layers"]
+        values["layers"] = "|".join(f"fc:{params[f'neurons_{i}']}:{params[f'activation_{i}']}" for i in range(n))
+    return build_config(spec.ruleset, values, cap_start="start_learn_threshold" not in spec.fixed_values)
+
+
+def _param_names(spec: StudySpec, params: Mapping[str, Any]) -> list[str]:
+    names = [d.name for d in spec.space if d.name not in LAYOUT]
+    if spec.searches_layout:
+        names.append("n_layers")
+        n = params.get("n_layers", 0)
+        for i in range(n if isinstance(n, int) else 0):
+            names += [f"neurons_{i}", f"activation_{i}"]
+    return names
+
+
+def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
+    """The params of a real config in this space's coordinates (for crowd submissions); inverse of to_config.
+
+    Values outside the space's ranges are returned as they are (``outside`` lists them). A hidden
+    layer that is not a plain ``fc:N[:activation]`` (svm, lrn, dropout, …) cannot be expressed as
+    n_layers / neurons_i / activation_i: ``SpecError`` naming it.
+    """
+    params: dict[str, Any] = {}
+    for d in spec.space:
+        if d.name in LAYOUT:
+            continue
+        if d.name == "one_minus_gamma":
+            params["one_minus_gamma"] = float(f"{1.0 - config.gamma:.15g}")
+        else:
+            params[d.name] = getattr(config, d.name)
+    if spec.searches_layout:
+        layers = config.layers
+        params["n_layers"] = len(layers)
+        for i, layer in enumerate(layers):
+            text = format_hidden([layer])
+            m = _FC_RE.match(text)
+            if m is None:
+                raise SpecError(
+                    f"encode: hidden layer {i} '{text}' is not fc:N[:activation]; "
+                    "the layout space only has plain fc layers"
+                )
+            params[f"neurons_{i}"] = int(m.group(1))
+            params[f"activation_{i}"] = m.group(2) or "linear"
+    return params
+
+
+def outside(spec: StudySpec, params: Mapping[str, Any]) -> list[str]:
+    """One line per param outside the space's ranges or choices (empty: Optuna can store them as is)."""
+    dims = spec.dimensions
+    problems = []
+    for name, value in params.items():
+        base = re.sub(r"_\d+$", "", name) if name.startswith(("neurons_", "activation_")) else name
+        d = dims.get(base)
+        if d is None:
+            problems.append(f"{name}: not searched")
+        elif d.kind == "categorical":
+            if value not in d.choices:
+                problems.append(f"{name}: {value!r} not in {list(d.choices)}")
+        elif d.low is not None and d.high is not None and not d.low <= value <= d.high:
+            problems.append(f"{name}: {value!r} outside [{d.low}, {d.high}]")
+    return problems
+
+
+def param_count(config: TrainConfig) -> int:
+    """Weights + biases of the convnetjs MLP the config builds (input, hidden layers, regression(5))."""
+    layers = config.expanded_layers
+    return sum(n_in * n_out + n_out for layer, (n_in, n_out) in zip(layers, layer_sizes(layers), strict=True)
+               if isinstance(layer, netspec.FC))  # fmt: skip

@@ -1,0 +1,707 @@
+"""A study spec: one TOML file → frozen, typed dataclasses, fully validated before any worker starts.
+
+Five tables, every key optional unless said otherwise::
+
+    [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s
+    [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
+    [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
+    [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
+    [resources]   workers, cpus_per_trial, gpus_per_trial
+
+Every problem raises ``SpecError`` with ONE line naming the file, the table, the key and the fix
+(``study_configs/x.toml: [space] learning_rate: low 0.1 > high 0.01; swap them``), so the CLI can print
+it and exit 2 before Ray or a storage is touched. The [space] vocabulary (``PARAMS``) and the
+field bounds come from ``sim.fields`` — the one table of DeepTraffic settings — not from a copy here.
+
+``start_learn_threshold`` must stay below ``experience_size`` (deepqlearn would never learn). When it
+is not in [fixed], every trial's value is capped at ``experience_size − 1`` (``space.to_config``):
+both can then be searched over the crowd's independent ranges, and the stored config holds the
+value actually trained with. A [fixed] threshold is never changed: it must lie below the lowest
+experience size the space can draw.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import os
+import re
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from autotune import OFFICIAL_PROTOCOL, TrainConfig
+from sim import fields
+from sim.config import RULESETS, ConfigError
+
+__all__ = [
+    "SpecError",
+    "SAMPLERS",
+    "PRUNERS",
+    "PARAMS",
+    "LAYOUT",
+    "StudySection",
+    "Dimension",
+    "EvaluationSection",
+    "ResourcesSection",
+    "StudySpec",
+    "load_spec",
+    "parse_spec",
+]
+
+SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc")
+PRUNERS = ("median", "hyperband", "sha", "wilcoxon", "none")
+SECTIONS = ("study", "fixed", "space", "evaluation", "resources")
+LAYOUT = ("n_layers", "neurons", "activation")
+"""The hidden-layer layout: n_layers, then neurons_i and activation_i for every i < n_layers."""
+# [space] names that set a TrainConfig field of another name (sampling coordinates)
+_FIELD_OF = {"one_minus_gamma": "gamma", "n_layers": "layers", "neurons": "layers", "activation": "layers"}
+PARAMS: tuple[str, ...] = (
+    *(f.name for f in fields.FIELDS if f.name != "gamma"),
+    "one_minus_gamma",
+    *LAYOUT,
+)
+"""Every name a [space] table may search (the shared search-space vocabulary)."""
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+_TRAIN_FIELDS = tuple(f.name for f in dataclasses.fields(TrainConfig))
+_FIXED_KEYS = tuple(n for n in _TRAIN_FIELDS if n != "ruleset") + tuple(fields.ALIASES)
+_DEFAULT_TRIAL_TIMEOUT_S = 1800.0
+
+
+class SpecError(ConfigError):
+    """A study spec is invalid; the one-line message names the file, the table, the key and the fix."""
+
+
+# --------------------------------------------------------------------------------------------
+# the dataclasses
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class StudySection:
+    """[study]: what to optimise with which algorithms, for how long, stored where."""
+
+    name: str
+    """Optuna study name; also the folder runs/<name>/ of the embedded storage (default: the file's stem)."""
+    ruleset: str = "v2"
+    """Engine rules every trial trains and is scored in: 'v2' (2018 site) or 'v1' (2017 engine)."""
+    sampler: str = "tpe"
+    """Optuna sampler: tpe, cmaes, gp, random or qmc (all seeded with ``seed``)."""
+    pruner: str = "median"
+    """Optuna pruner on the intermediate quick scores: median, hyperband, sha, wilcoxon or none."""
+    n_trials: int | None = None
+    """Trials to finish (COMPLETE, PRUNED or FAIL) before the study stops; None: until timeout_s."""
+    timeout_s: float | None = None
+    """Wall-time budget [s] after which no new trial starts; None: until n_trials."""
+    seed: int = 0
+    """Seed of the sampler; trial i trains with a seed derived from it (explicit seeds only)."""
+    storage: str = ""
+    """'' = embedded journal file runs/<name>/journal.log; else a journal file path or an SQLAlchemy URL."""
+    max_retries: int = 2
+    """How many times a FAILed trial (worker died, timeout) is re-run with the same settings."""
+    trial_timeout_s: float = _DEFAULT_TRIAL_TIMEOUT_S
+    """Wall-time limit [s] of one trial (training + evaluations); beyond it the trial FAILs."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Dimension:
+    """One searched parameter in Optuna's terms: a numeric range or a list of choices."""
+
+    name: str
+    """A name of ``PARAMS`` (e.g. 'learning_rate', 'one_minus_gamma', 'neurons')."""
+    kind: str
+    """'int' (suggest_int), 'float' (suggest_float) or 'categorical' (suggest_categorical)."""
+    low: float | None = None
+    """Smallest value (inclusive), in the parameter's own unit; None for categorical."""
+    high: float | None = None
+    """Largest value (inclusive); None for categorical."""
+    log: bool = False
+    """Sample uniformly in log(value) (low must be > 0)."""
+    step: float | None = None
+    """Grid step from low (not with log); None: continuous (floats) or 1 (ints)."""
+    choices: tuple[Any, ...] = ()
+    """The categories (categorical only)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The TOML entry ({low, high, log[, step]} or {choices}); ``parse_spec`` reads it back."""
+        if self.kind == "categorical":
+            return {"choices": list(self.choices)}
+        out: dict[str, Any] = {"low": self.low, "high": self.high, "log": self.log}
+        if self.step is not None:
+            out["step"] = self.step
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluationSection:
+    """[evaluation]: the intermediate (quick) scores the pruner sees and the final, official score."""
+
+    report_points: int = 10
+    """Intermediate scores per trial, at (k+1)/report_points of training, k = 0 … report_points−1."""
+    quick_runs: int = 20
+    """Runs averaged into one intermediate score (the curve is noisy: more runs, steadier pruning)."""
+    quick_frames: int = 2000
+    """Frames per quick run [frames] (the official v2 runs are 2,000 frames long too)."""
+    final_protocol: str = ""
+    """Protocol of the objective: the ruleset's official one (v2-official, v1-original); '' = that one."""
+    n_startup_trials: int = 5
+    """Trials that finish before any pruning (median/wilcoxon pruners)."""
+    n_warmup_steps: int = 3
+    """Report steps of a trial before it may be pruned (median; sha/hyperband min_resource = this + 1)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ResourcesSection:
+    """[resources]: how many trials run at once and what each one holds."""
+
+    workers: int
+    """Long-lived workers = trials in parallel (default: the machine's CPUs / cpus_per_trial)."""
+    cpus_per_trial: float = 1.0
+    """CPUs a worker reserves (Ray num_cpus); training is single-threaded."""
+    gpus_per_trial: float = 0.0
+    """GPUs a worker reserves (Ray num_gpus; fractions share one GPU)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class StudySpec:
+    """A validated study: [study], [fixed], [space], [evaluation] and [resources]."""
+
+    study: StudySection
+    """What to optimise with which algorithms, for how long, stored where."""
+    fixed: tuple[tuple[str, Any], ...]
+    """(TrainConfig field, value) pairs every trial uses, normalised (snake_case, layers as a crowd string)."""
+    space: tuple[Dimension, ...]
+    """The searched parameters, in file order."""
+    evaluation: EvaluationSection
+    """Intermediate and final scoring."""
+    resources: ResourcesSection
+    """Workers and what each holds."""
+    source: str = ""
+    """Where the spec came from (the TOML path), used in error messages."""
+
+    # -- views ----------------------------------------------------------------------------
+    @property
+    def fixed_values(self) -> dict[str, Any]:
+        """[fixed] as a dict of TrainConfig field → value."""
+        return dict(self.fixed)
+
+    @property
+    def dimensions(self) -> dict[str, Dimension]:
+        """[space] as a dict name → Dimension."""
+        return {d.name: d for d in self.space}
+
+    @property
+    def searches_layout(self) -> bool:
+        """True when the hidden layers are searched (n_layers, neurons, activation)."""
+        return any(d.name in LAYOUT for d in self.space)
+
+    @property
+    def ruleset(self) -> str:
+        """The study's engine rules ('v1' or 'v2')."""
+        return self.study.ruleset
+
+    # -- (de)serialisation ------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready tables (stored as a study user attr); ``parse_spec`` rebuilds the same spec."""
+        return {
+            "study": dataclasses.asdict(self.study),
+            "fixed": dict(self.fixed),
+            "space": {d.name: d.to_dict() for d in self.space},
+            "evaluation": dataclasses.asdict(self.evaluation),
+            "resources": dataclasses.asdict(self.resources),
+        }
+
+    def with_overrides(
+        self,
+        *,
+        storage: str | None = None,
+        name: str | None = None,
+        workers: int | None = None,
+        n_trials: int | None = None,
+        timeout_s: float | None = None,
+    ) -> StudySpec:
+        """A copy with command-line overrides applied (None: keep); each is validated like the TOML key."""
+        study = self.study
+        resources = self.resources
+        src = self.source or "spec"
+        if storage is not None:
+            study = dataclasses.replace(study, storage=_check_str(storage, "--storage"))
+        if name is not None:
+            study = dataclasses.replace(study, name=_check_name(name, "--study-name"))
+        if n_trials is not None:
+            study = dataclasses.replace(
+                study, n_trials=_pos_int(n_trials, f"--n-trials (overrides {src} [study] n_trials)")
+            )
+        if timeout_s is not None:
+            study = dataclasses.replace(
+                study, timeout_s=_pos_float(timeout_s, f"--timeout (overrides {src} [study] timeout_s)")
+            )
+        if workers is not None:
+            resources = dataclasses.replace(
+                resources, workers=_pos_int(workers, f"--workers (overrides {src} [resources] workers)")
+            )
+        return dataclasses.replace(self, study=study, resources=resources)
+
+
+# --------------------------------------------------------------------------------------------
+# loading
+# --------------------------------------------------------------------------------------------
+
+
+def load_spec(path: str | Path) -> StudySpec:
+    """Read and validate a study TOML (``SpecError`` with a one-line message on any problem)."""
+    p = Path(path)
+    source = str(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError(f"{source}: file not found; check the path") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"{source}: cannot read the file ({_one_line(str(exc))}); check the path") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(_toml_error(source, text, exc)) from None
+    return parse_spec(data, source=source, default_name=p.stem)
+
+
+def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: str | None = None) -> StudySpec:
+    """Validate the tables of a study (a parsed TOML or ``StudySpec.to_dict()``) into a ``StudySpec``."""
+    for key, value in data.items():
+        if key not in SECTIONS:
+            owner = next((s for s in SECTIONS if s != "fixed" and key in _SECTION_KEYS.get(s, ())), None)
+            if owner is not None and not isinstance(value, Mapping):
+                raise SpecError(f"{source}: {key}: a key outside any table; move it under [{owner}]")
+            raise SpecError(f"{source}: [{key}]: unknown table{_hint(key, SECTIONS)} (tables: {', '.join(SECTIONS)})")
+        if not isinstance(value, Mapping):
+            raise SpecError(f"{source}: [{key}]: must be a table, got {value!r}; write it as [{key}] with keys below")
+    study = _parse_study(data.get("study", {}), source, default_name)
+    evaluation = _parse_evaluation(data.get("evaluation", {}), source, study.ruleset)
+    resources = _parse_resources(data.get("resources", {}), source)
+    space = tuple(_parse_dimension(name, entry, source, study.ruleset) for name, entry in data.get("space", {}).items())
+    fixed = _parse_fixed(data.get("fixed", {}), source, study.ruleset, {d.name for d in space})
+    spec = StudySpec(study, fixed, space, evaluation, resources, source)
+    _check_combination(spec)
+    return spec
+
+
+_SECTION_KEYS: dict[str, tuple[str, ...]] = {
+    "study": tuple(f.name for f in dataclasses.fields(StudySection)),
+    "evaluation": tuple(f.name for f in dataclasses.fields(EvaluationSection)),
+    "resources": tuple(f.name for f in dataclasses.fields(ResourcesSection)),
+}
+
+
+def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -> StudySection:
+    _check_keys(table, "study", src)
+    where = _Where(src, "study")
+    name = table.get("name", default_name)
+    if name is None:
+        raise SpecError(f'{src}: [study] name: missing; add name = "my-study"')
+    name = _check_name(name, f"{src}: [study] name")
+    ruleset = table.get("ruleset", "v2")
+    if ruleset not in RULESETS:
+        raise where.error("ruleset", f"{ruleset!r} is not a ruleset", f"use one of {', '.join(RULESETS)}")
+    sampler = table.get("sampler", "tpe")
+    if sampler not in SAMPLERS:
+        raise where.error(
+            "sampler",
+            f"unknown sampler {sampler!r}{_hint(str(sampler), SAMPLERS)}",
+            f"use one of {', '.join(SAMPLERS)}",
+        )
+    pruner = table.get("pruner", "median")
+    if pruner not in PRUNERS:
+        raise where.error(
+            "pruner", f"unknown pruner {pruner!r}{_hint(str(pruner), PRUNERS)}", f"use one of {', '.join(PRUNERS)}"
+        )
+    n_trials = table.get("n_trials")
+    if n_trials is not None:
+        n_trials = _pos_int(n_trials, f"{src}: [study] n_trials")
+    timeout_s = table.get("timeout_s")
+    if timeout_s is not None:
+        timeout_s = _pos_float(timeout_s, f"{src}: [study] timeout_s")
+    if n_trials is None and timeout_s is None:
+        raise where.error("n_trials", "neither n_trials nor timeout_s is set, so the study would never end",
+                          "set n_trials = 100 or timeout_s = 3600 (or both)")  # fmt: skip
+    seed = _int(table.get("seed", 0), f"{src}: [study] seed", 0, 2**32 - 1)
+    storage = _check_str(table.get("storage", ""), f"{src}: [study] storage")
+    max_retries = _int(table.get("max_retries", 2), f"{src}: [study] max_retries", 0, 100)
+    trial_timeout_s = _pos_float(
+        table.get("trial_timeout_s", _DEFAULT_TRIAL_TIMEOUT_S), f"{src}: [study] trial_timeout_s"
+    )
+    return StudySection(
+        name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s
+    )
+
+
+def _parse_evaluation(table: Mapping[str, Any], src: str, ruleset: str) -> EvaluationSection:
+    _check_keys(table, "evaluation", src)
+    where = _Where(src, "evaluation")
+    d = EvaluationSection()
+    report_points = _int(table.get("report_points", d.report_points), f"{src}: [evaluation] report_points", 1, 1000)
+    quick_runs = _int(table.get("quick_runs", d.quick_runs), f"{src}: [evaluation] quick_runs", 1, 100_000)
+    quick_frames = _int(table.get("quick_frames", d.quick_frames), f"{src}: [evaluation] quick_frames", 1, 10_000_000)
+    official = OFFICIAL_PROTOCOL[ruleset]
+    final_protocol = table.get("final_protocol", "") or official
+    if final_protocol != official:
+        raise where.error(
+            "final_protocol",
+            f"{final_protocol!r} is not the official protocol of ruleset {ruleset!r}",
+            f"use '{official}' (or leave it out)",
+        )
+    n_startup = _int(
+        table.get("n_startup_trials", d.n_startup_trials), f"{src}: [evaluation] n_startup_trials", 0, 1_000_000
+    )
+    n_warmup = _int(table.get("n_warmup_steps", d.n_warmup_steps), f"{src}: [evaluation] n_warmup_steps", 0, 1000)
+    if n_warmup >= report_points:
+        raise where.error(
+            "n_warmup_steps",
+            f"{n_warmup} ≥ report_points {report_points}, so no trial could ever be pruned",
+            f'use 0–{report_points - 1} (or pruner = "none")',
+        )
+    return EvaluationSection(report_points, quick_runs, quick_frames, final_protocol, n_startup, n_warmup)
+
+
+def _parse_resources(table: Mapping[str, Any], src: str) -> ResourcesSection:
+    _check_keys(table, "resources", src)
+    cpus = _pos_float(table.get("cpus_per_trial", 1.0), f"{src}: [resources] cpus_per_trial")
+    gpus = _float(table.get("gpus_per_trial", 0.0), f"{src}: [resources] gpus_per_trial", 0.0, 1024.0)
+    default_workers = max(1, int((os.cpu_count() or 1) // cpus))
+    workers = _pos_int(table.get("workers", default_workers), f"{src}: [resources] workers")
+    return ResourcesSection(workers, cpus, gpus)
+
+
+def _parse_fixed(table: Mapping[str, Any], src: str, ruleset: str, searched: set[str]) -> tuple[tuple[str, Any], ...]:
+    given: dict[str, Any] = {}
+    for key, value in table.items():
+        if key == "ruleset":
+            raise SpecError(f"{src}: [fixed] ruleset: the ruleset is a study setting; move it to [study] ruleset")
+        if key not in _FIXED_KEYS:
+            raise SpecError(f"{src}: [fixed] {key}: unknown key{_hint(key, _FIXED_KEYS)} (any TrainConfig field)")
+        name = fields.ALIASES.get(key, key)
+        if name in given:
+            raise SpecError(f"{src}: [fixed] {key}: given twice (as {name} and its alias); keep one")
+        given[name] = value
+    probe = dict(given)
+    if "start_learn_threshold" in given and "experience_size" in searched:
+        probe["experience_size"] = fields.bounds("experience_size")[1]  # checked against the space later
+    try:
+        config = build_config(ruleset, probe, cap_start="start_learn_threshold" not in given)
+    except ConfigError as exc:
+        raise SpecError(f"{src}: [fixed] {_one_line(str(exc))}") from None
+    real = config.to_mapping()
+    return tuple((name, real[name]) for name in given)
+
+
+def _parse_dimension(name: str, entry: Any, src: str, ruleset: str) -> Dimension:
+    where = _Where(src, "space")
+    if name not in PARAMS:
+        if name == "gamma":
+            raise where.error(name, "gamma is searched as one_minus_gamma (gamma = 1 − one_minus_gamma, log scale)",
+                              "write one_minus_gamma = { low = 0.01, high = 0.5, log = true }")  # fmt: skip
+        if name == "layers":
+            raise where.error(name, "the layout is searched as n_layers, neurons and activation",
+                              "write n_layers = {…}, neurons = {…}, activation = { choices = [...] }")  # fmt: skip
+        raise where.error(name, f"unknown parameter{_hint(name, PARAMS)}", f"searchable: {', '.join(PARAMS)}")
+    if not isinstance(entry, Mapping):
+        raise where.error(name, f"expected {{ low = …, high = … }} or {{ choices = [...] }}, got {entry!r}",
+                          f"to keep one value put {name} in [fixed]")  # fmt: skip
+    allowed = ("low", "high", "log", "step", "choices")
+    for key in entry:
+        if key not in allowed:
+            raise where.error(f"{name}.{key}", f"unknown key{_hint(key, allowed)}", f"use {', '.join(allowed)}")
+    kind, lo_ok, hi_ok = _param_kind(name)
+    if "choices" in entry:
+        extra = [k for k in ("low", "high", "log", "step") if k in entry]
+        if extra:
+            raise where.error(name, f"choices and {extra[0]} given together", "use either a range or choices")
+        choices = entry["choices"]
+        if not isinstance(choices, list) or not choices:
+            raise where.error(
+                name, f"choices must be a non-empty list, got {choices!r}", f"e.g. {name} = {{ choices = [...] }}"
+            )
+        seen: list[Any] = []
+        for c in choices:
+            value = _check_value(name, c, kind, lo_ok, hi_ok, where, "choice", ruleset)
+            if value in seen:
+                raise where.error(name, f"choice {c!r} is listed twice", "list each choice once")
+            seen.append(value)
+        return Dimension(name, "categorical", choices=tuple(seen))
+    if kind == "str":
+        raise where.error(
+            name, "a categorical parameter needs choices", f'write {name} = {{ choices = ["relu", "tanh"] }}'
+        )
+    for key in ("low", "high"):
+        if key not in entry:
+            raise where.error(name, f"{key} is missing", f"write {name} = {{ low = …, high = … }}")
+    low = _check_value(name, entry["low"], kind, lo_ok, hi_ok, where, "low", ruleset)
+    high = _check_value(name, entry["high"], kind, lo_ok, hi_ok, where, "high", ruleset)
+    if low > high:
+        raise where.error(name, f"low {low!r} > high {high!r}", "swap them")
+    if low == high:
+        raise where.error(name, f"low = high = {low!r} searches nothing", f"put {name} = {low!r} in [fixed]")
+    log = entry.get("log", False)
+    if not isinstance(log, bool):
+        raise where.error(name, f"log must be true or false, got {log!r}", "write log = true")
+    if log and low <= 0:
+        raise where.error(name, f"log scale needs low > 0, got low {low!r}", "raise low above 0 or set log = false")
+    step = entry.get("step")
+    if step is not None:
+        if log:
+            raise where.error(name, "step and log = true cannot be combined", "drop step or set log = false")
+        if kind == "int" and (isinstance(step, bool) or not isinstance(step, int) or step < 1):
+            raise where.error(name, f"step must be a positive integer, got {step!r}", "e.g. step = 2")
+        if isinstance(step, bool) or not isinstance(step, (int, float)) or not step > 0:
+            raise where.error(name, f"step must be a positive number, got {step!r}", "e.g. step = 0.1")
+        n = (high - low) / step
+        if abs(n - round(n)) > 1e-9 * max(1.0, abs(n)):
+            fit = low + math.floor(n) * step
+            raise where.error(
+                name, f"high − low = {high - low!r} is not a multiple of step {step!r}", f"set high = {fit!r}"
+            )
+        step = int(step) if kind == "int" else float(step)
+    return Dimension(name, kind, low, high, log, step)
+
+
+def _param_kind(name: str) -> tuple[str, float, float | None]:
+    """(kind, smallest, largest accepted value) of a [space] name; the bounds come from sim.fields."""
+    if name == "one_minus_gamma":
+        g_lo, g_hi = fields.bounds("gamma")
+        return "float", 1.0 - g_hi, 1.0 - g_lo
+    if name == "n_layers":
+        return "int", 0, None
+    if name == "neurons":
+        return "int", 1, None
+    if name == "activation":
+        return "str", 0, None
+    f = fields.field(name)
+    return ("int" if f.kind is int else "float"), f.low, f.high
+
+
+def _check_value(
+    name: str, value: Any, kind: str, lo: float, hi: float | None, where: _Where, what: str, ruleset: str
+) -> Any:
+    """One bound or choice, of the right type and inside what deepqlearn accepts."""
+    if kind == "str":
+        if not isinstance(value, str):
+            raise where.error(name, f"{what} {value!r} is not a string", 'use activation names like "relu"')
+        try:
+            TrainConfig(ruleset=ruleset, layers=f"fc:4:{value}")
+        except ConfigError as exc:
+            raise where.error(
+                name, f"{what} {value!r} is not accepted ({_one_line(str(exc))})", "fix the choice"
+            ) from None
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise where.error(name, f"{what} must be a number, got {value!r}", "write a plain number")
+    if kind == "int":
+        if isinstance(value, float):
+            if not value.is_integer():
+                raise where.error(
+                    name, f"{what} {value!r} is not an integer", f"use {math.floor(value)} or {math.ceil(value)}"
+                )
+            value = int(value)
+    else:
+        value = float(value)
+    accepted = f"{lo:g}–{hi:g}" if hi is not None else f"≥ {lo:g}"
+    if value < lo:
+        raise where.error(
+            name, f"{what} {value!r} is below what deepqlearn accepts ({accepted})", f"raise it to {lo:g}"
+        )
+    if hi is not None and value > hi:
+        raise where.error(
+            name, f"{what} {value!r} is above what deepqlearn accepts ({accepted})", f"lower it to {hi:g}"
+        )
+    if name == "other_agents" and ruleset == "v1" and value != 0:
+        raise where.error(name, f"{what} {value!r}: the v1 engine has no other agents", 'remove it or use ruleset "v2"')
+    return value
+
+
+def _check_combination(spec: StudySpec) -> None:
+    """Cross-table rules: nothing both fixed and searched, a complete layout, and buildable extremes."""
+    src = spec.source
+    where = _Where(src, "space")
+    fixed = spec.fixed_values
+    dims = spec.dimensions
+    for d in spec.space:
+        field = _FIELD_OF.get(d.name, d.name)
+        if field in fixed:
+            raise where.error(
+                d.name,
+                f"is searched but [fixed] also sets {field}",
+                f"remove {field} from [fixed] or {d.name} from [space]",
+            )
+    present = [n for n in LAYOUT if n in dims]
+    if present and len(present) < len(LAYOUT):
+        missing = next(n for n in LAYOUT if n not in dims)
+        raise where.error(missing, f"missing: the layout is searched ({', '.join(present)}) but {missing} is not",
+                          f"add {missing} = {_LAYOUT_EXAMPLE[missing]}")  # fmt: skip
+    if "activation" in dims and dims["activation"].kind != "categorical":  # pragma: no cover - rejected per entry
+        raise where.error("activation", "needs choices", 'write activation = { choices = ["relu", "tanh"] }')
+    exp = dims.get("experience_size")
+    if "start_learn_threshold" in fixed and exp is not None:
+        smallest = min(exp.choices) if exp.kind == "categorical" else exp.low
+        if fixed["start_learn_threshold"] >= smallest:
+            raise where.error("experience_size", f"can be {smallest} ≤ [fixed] start_learn_threshold "
+                              f"{fixed['start_learn_threshold']}, so learning would never start",
+                              f"raise experience_size.low above {fixed['start_learn_threshold']}")  # fmt: skip
+    from autotune.search import space  # the decoding lives there; imported here to keep one copy
+
+    for label, params in _probe_points(spec):
+        try:
+            space.to_config(spec, params)
+        except ConfigError as exc:
+            raise SpecError(f"{src}: [space] {label} of the space (with [fixed]) is rejected: {_one_line(str(exc))}; "
+                            "narrow the range") from None  # fmt: skip
+
+
+_LAYOUT_EXAMPLE = {
+    "n_layers": "{ low = 1, high = 3 }",
+    "neurons": "{ low = 8, high = 512, log = true }",
+    "activation": '{ choices = ["relu", "tanh"] }',
+}
+
+
+def _probe_points(spec: StudySpec) -> list[tuple[str, dict[str, Any]]]:
+    """Params at the low and the high corner, and the narrowest layer with every activation."""
+    points: list[tuple[str, dict[str, Any]]] = []
+    for label, pick in (("the low corner", 0), ("the high corner", -1)):
+        params: dict[str, Any] = {}
+        for d in spec.space:
+            if d.name in LAYOUT:
+                continue
+            params[d.name] = _corner(d, pick)
+        if spec.searches_layout:
+            dims = spec.dimensions
+            n = _corner(dims["n_layers"], pick)
+            params["n_layers"] = n
+            for i in range(n):
+                params[f"neurons_{i}"] = _corner(dims["neurons"], pick)
+                params[f"activation_{i}"] = dims["activation"].choices[pick]
+        points.append((label, params))
+    if spec.searches_layout:
+        dims = spec.dimensions
+        if max(_corner(dims["n_layers"], 0), _corner(dims["n_layers"], -1)) >= 1:
+            narrow = _corner(dims["neurons"], 0)
+            for act in dims["activation"].choices:
+                params = {**points[0][1], "n_layers": 1, "neurons_0": narrow, "activation_0": act}
+                points.append((f"neurons {narrow} with activation {act!r}", params))
+    return points
+
+
+def _corner(d: Dimension, pick: int) -> Any:
+    if d.kind == "categorical":
+        numeric = all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in d.choices)
+        return sorted(d.choices)[pick] if numeric else d.choices[pick]
+    return d.low if pick == 0 else d.high
+
+
+# --------------------------------------------------------------------------------------------
+# building a TrainConfig (shared with space.to_config)
+# --------------------------------------------------------------------------------------------
+
+_TRAIN_DEFAULTS = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+
+
+def build_config(ruleset: str, values: Mapping[str, Any], *, cap_start: bool) -> TrainConfig:
+    """TrainConfig from real field values; with ``cap_start`` the threshold is capped at experience_size − 1."""
+    merged = {"ruleset": ruleset, **values}
+    if cap_start:
+        exp = merged.get("experience_size", _TRAIN_DEFAULTS["experience_size"])
+        start = merged.get("start_learn_threshold", _TRAIN_DEFAULTS["start_learn_threshold"])
+        if isinstance(exp, int) and isinstance(start, int) and not isinstance(start, bool) and start >= exp:
+            merged["start_learn_threshold"] = max(0, exp - 1)
+    return TrainConfig.from_mapping(merged)
+
+
+# --------------------------------------------------------------------------------------------
+# small checks
+# --------------------------------------------------------------------------------------------
+
+
+class _Where:
+    """A table of one file, for ``file: [table] key: problem; fix`` messages."""
+
+    def __init__(self, source: str, table: str) -> None:
+        self.source = source
+        self.table = table
+
+    def error(self, key: str, problem: str, fix: str) -> SpecError:
+        return SpecError(_one_line(f"{self.source}: [{self.table}] {key}: {problem}; {fix}"))
+
+
+def _check_keys(table: Mapping[str, Any], section: str, src: str) -> None:
+    valid = _SECTION_KEYS[section]
+    for key in table:
+        if key not in valid:
+            raise SpecError(f"{src}: [{section}] {key}: unknown key{_hint(key, valid)} (valid: {', '.join(valid)})")
+
+
+def _hint(key: str, valid: tuple[str, ...] | list[str]) -> str:
+    close = difflib.get_close_matches(key, list(valid), n=1, cutoff=0.4)
+    return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _int(value: Any, what: str, lo: int, hi: int) -> int:
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise SpecError(f"{what}: must be an integer in {lo}–{hi:,}, got {value!r}; write a whole number")
+    if not lo <= value <= hi:
+        raise SpecError(f"{what}: {value} is out of range; use {lo}–{hi:,}")
+    return value
+
+
+def _pos_int(value: Any, what: str) -> int:
+    return _int(value, what, 1, 2**63 - 1)
+
+
+def _float(value: Any, what: str, lo: float, hi: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SpecError(f"{what}: must be a number in [{lo:g}, {hi:g}], got {value!r}; write a plain number")
+    if not lo <= value <= hi:
+        raise SpecError(f"{what}: {value!r} is out of range; use [{lo:g}, {hi:g}]")
+    return float(value)
+
+
+def _pos_float(value: Any, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise SpecError(f"{what}: must be a positive number of seconds, got {value!r}; e.g. 600")
+    return float(value)
+
+
+def _check_name(value: Any, what: str) -> str:
+    if not isinstance(value, str) or not _NAME_RE.match(value):
+        raise SpecError(
+            f"{what}: {value!r} is not a usable study name; "
+            "use letters, digits, '.', '_' or '-' (it names runs/<name>/)"
+        )
+    return value
+
+
+def _check_str(value: Any, what: str) -> str:
+    if not isinstance(value, str):
+        raise SpecError(f'{what}: must be a string, got {value!r}; e.g. "" (embedded) or "postgresql://host/db"')
+    return value
+
+
+def _toml_error(source: str, text: str, exc: tomllib.TOMLDecodeError) -> str:
+    """``file: [table] (line L, column C): invalid TOML: reason; fix the syntax there``."""
+    msg = str(exc)
+    m = re.search(r"\(at line (\d+), column (\d+)\)", msg)
+    reason = msg[: m.start()].strip() if m else msg
+    if not m:
+        return _one_line(f"{source}: invalid TOML: {reason}; fix the syntax")
+    line, col = int(m.group(1)), int(m.group(2))
+    table = ""
+    for raw in text.splitlines()[: line - 1]:
+        header = re.match(r"^\s*\[\s*([^\[\]]+?)\s*\]", raw)
+        if header:
+            table = f"[{header.group(1)}] "
+    return _one_line(f"{source}: {table}(line {line}, column {col}): invalid TOML: {reason}; fix the syntax there")

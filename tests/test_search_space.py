@@ -1,0 +1,226 @@
+"""Search space: sample() with a real Optuna trial, to_config/encode round trips, param_count vs the crowd."""
+
+from __future__ import annotations
+
+import csv
+import math
+from typing import Any
+
+import optuna
+import pytest
+
+from autotune import ConfigError, TrainConfig
+from autotune.search import space
+from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
+from tests.conftest import CROWD, ROOT
+
+CONFIGS = ROOT / "study_configs"
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+# the crowd CSV's config columns (TrainConfig.from_mapping accepts their camelCase names)
+CSV_CONFIG = (
+    "lanesSide", "patchesAhead", "patchesBehind", "trainIterations", "otherAgents", "temporal_window",
+    "hidden_layers", "learning_rate", "momentum", "batch_size", "l2_decay", "l1_decay", "gamma", "experience_size",
+    "start_learn_threshold", "learning_steps_total", "learning_steps_burnin", "epsilon_min", "epsilon_test_time",
+)  # fmt: skip
+
+
+def _number(text: str) -> int | float:
+    value = float(text)
+    return int(value) if value.is_integer() else value
+
+
+def _crowd_rows() -> list[dict[str, str]]:
+    path = CROWD / "submissions.csv"
+    if not path.exists():
+        pytest.fail(f"crowd data not found at {path} (CI keeps ../shared beside the checkout)")
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _crowd_config(row: dict[str, str]) -> TrainConfig:
+    values: dict[str, Any] = {"ruleset": row["engine_version"]}
+    for key in CSV_CONFIG:
+        if key == "hidden_layers" or row[key] != "":  # an empty hidden_layers is a linear net
+            values[key] = row[key] if key == "hidden_layers" else _number(row[key])
+    return TrainConfig.from_mapping(values)
+
+
+def _random_params(spec: StudySpec, n: int, seed: int) -> list[dict[str, Any]]:
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
+    out = []
+    for _ in range(n):
+        trial = study.ask()
+        out.append(space.sample(trial, spec))
+        study.tell(trial, 0.0)
+    return out
+
+
+@pytest.mark.parametrize("name", ["smoke.toml", "quick.toml", "paper.toml"])
+def test_every_sampled_config_is_valid(name: str) -> None:
+    spec = load_spec(CONFIGS / name)
+    n = 200 if name == "paper.toml" else 50
+    for params in _random_params(spec, n, seed=1):
+        config = space.to_config(spec, params)
+        assert config.ruleset == spec.ruleset
+        for field, value in spec.fixed:
+            assert config.to_mapping()[field] == value
+        assert not space.outside(spec, params)
+
+
+def test_sample_coordinates_and_define_by_run() -> None:
+    spec = load_spec(CONFIGS / "paper.toml")
+    trial = optuna.trial.FixedTrial(
+        {
+            **{d.name: d.low for d in spec.space if d.kind != "categorical" and d.name not in ("n_layers", "neurons")},
+            "one_minus_gamma": 0.1,
+            "n_layers": 2,
+            "neurons_0": 384,
+            "activation_0": "tanh",
+            "neurons_1": 8,
+            "activation_1": "maxout",
+            "neurons_2": 99,  # not asked: n_layers is 2
+        }
+    )
+    params = space.sample(trial, spec)
+    assert "neurons_2" not in params and params["n_layers"] == 2
+    config = space.to_config(spec, params)
+    assert config.hidden == "fc:384:tanh|fc:8:maxout"
+    assert config.gamma == 0.9
+    assert config.start_learn_threshold == 100 and config.experience_size == 1000
+
+
+def test_start_threshold_capped_below_experience() -> None:
+    spec = load_spec(CONFIGS / "paper.toml")
+    params = space.encode(spec, TrainConfig(experience_size=3000, start_learn_threshold=500))
+    params["start_learn_threshold"] = 50_000
+    config = space.to_config(spec, params)
+    assert config.start_learn_threshold == 2999 and config.experience_size == 3000
+
+
+def test_round_trip() -> None:
+    spec = load_spec(CONFIGS / "paper.toml")
+    for params in _random_params(spec, 100, seed=2):
+        config = space.to_config(spec, params)
+        back = space.encode(spec, config)
+        assert space.to_config(spec, back) == config
+        assert back.keys() == params.keys()
+        for key, value in params.items():
+            if key == "one_minus_gamma":
+                assert math.isclose(back[key], value, rel_tol=0.0, abs_tol=1e-15), key  # gamma has 15 digits
+            elif key == "start_learn_threshold":
+                assert back[key] == min(value, params["experience_size"] - 1)
+            else:
+                assert back[key] == value, key
+
+
+def test_encode_crowd_names() -> None:
+    spec = load_spec(CONFIGS / "paper.toml")
+    gsurma = TrainConfig.from_mapping(
+        {"lanesSide": 2, "patchesAhead": 15, "patchesBehind": 7, "otherAgents": 10, "layers": "fc:384:tanh",
+         "trainIterations": 50000, "gamma": 0.9, "batch_size": 32, "l2_decay": 0.001, "experience_size": 10000}
+    )  # fmt: skip
+    params = space.encode(spec, gsurma)
+    assert params["one_minus_gamma"] == 0.1
+    assert (params["n_layers"], params["neurons_0"], params["activation_0"]) == (1, 384, "tanh")
+    assert params["other_agents"] == 10 and params["train_iterations"] == 50000
+    assert space.outside(spec, params) == []
+    assert space.to_config(spec, params) == gsurma
+    svm = gsurma.replace(layers="fc:10:relu|svm:10")
+    with pytest.raises(SpecError, match="hidden layer 1 'svm:10'"):
+        space.encode(spec, svm)
+    wide = space.encode(spec, gsurma.replace(lanesSide=50, layers="fc:10"))
+    assert wide["activation_0"] == "linear"
+    assert space.outside(spec, wide) == ["lanes_side: 50 outside [0, 10]", "activation_0: 'linear' not in "
+                                         "['relu', 'tanh', 'sigmoid', 'maxout']"]  # fmt: skip
+
+
+def test_to_config_rejects_wrong_params() -> None:
+    spec = load_spec(CONFIGS / "smoke.toml")
+    params = _random_params(spec, 1, seed=3)[0]
+    with pytest.raises(SpecError, match="'lanes_sid' is not a parameter"):
+        space.to_config(spec, {**params, "lanes_sid": 1})
+    with pytest.raises(SpecError, match="'learning_rate' is missing"):
+        space.to_config(spec, {k: v for k, v in params.items() if k != "learning_rate"})
+    with pytest.raises(ConfigError, match="lanes_side"):
+        space.to_config(spec, {**params, "lanes_side": 99})
+
+
+def test_sample_uses_only_the_duck_typed_trial() -> None:
+    spec = parse_spec(
+        {
+            "study": {"name": "d", "n_trials": 1},
+            "space": {
+                "batch_size": {"choices": [16, 32]},
+                "learning_rate": {"low": 0.001, "high": 0.01, "log": True},
+                "momentum": {"low": 0.0, "high": 0.9, "step": 0.1},
+                "lanes_side": {"low": 0, "high": 6, "step": 2},
+            },
+        }
+    )
+    calls: list[tuple[str, tuple[Any, ...], dict[str, Any]]] = []
+
+    class Recorder:
+        def suggest_int(self, name: str, low: int, high: int, *, step: int = 1, log: bool = False) -> int:
+            calls.append(("int", (name, low, high), {"step": step, "log": log}))
+            return low
+
+        def suggest_float(
+            self, name: str, low: float, high: float, *, step: float | None = None, log: bool = False
+        ) -> float:
+            calls.append(("float", (name, low, high), {"step": step, "log": log}))
+            return high
+
+        def suggest_categorical(self, name: str, choices: Any) -> Any:
+            calls.append(("categorical", (name, tuple(choices)), {}))
+            return choices[-1]
+
+    params = space.sample(Recorder(), spec)
+    assert params == {"batch_size": 32, "learning_rate": 0.01, "momentum": 0.9, "lanes_side": 0}
+    assert calls == [
+        ("categorical", ("batch_size", (16, 32)), {}),
+        ("float", ("learning_rate", 0.001, 0.01), {"step": None, "log": True}),
+        ("float", ("momentum", 0.0, 0.9), {"step": 0.1, "log": False}),
+        ("int", ("lanes_side", 0, 6), {"step": 2, "log": False}),
+    ]
+
+
+def test_param_count_matches_the_crowd() -> None:
+    """The CSV's n_params for every row whose config the site accepts (3 rows have 4 actions: skipped)."""
+    rows = [r for r in _crowd_rows() if r["num_inputs_formula_ok"] == "true"]
+    checked = 0
+    mismatched = []
+    for row in rows:
+        try:
+            config = _crowd_config(row)
+        except ConfigError:
+            continue  # experience_size 0, momentum 5: outside what TrainConfig accepts
+        checked += 1
+        if space.param_count(config) != int(row["n_params"]):
+            mismatched.append(f"{row['id']} {row['hidden_layers']}: {space.param_count(config)} vs {row['n_params']}")
+    assert checked >= 0.95 * len(rows), f"only {checked}/{len(rows)} crowd rows build a TrainConfig"
+    # m-quadra's svm:25 row: the CSV omits the final regression's fc (5·5 + 5 = 30); convnetjs builds it
+    assert len(mismatched) <= 1, f"{len(mismatched)}/{checked} crowd rows disagree on n_params: {mismatched}"
+
+
+def test_param_count_small() -> None:
+    # 19 inputs (default template: L0 P1 B0 tw3) → fc(1) → regression(5): 19·1+1 + 1·5+5
+    assert space.param_count(TrainConfig()) == 30
+    # maxout halves the width the next layer sees: 10 → 5 → fc 5·4+4 → 4·5+5
+    cfg = TrainConfig(lanes_side=0, patches_ahead=2, temporal_window=0, layers="fc:10:maxout|fc:4:relu")
+    assert space.param_count(cfg) == (2 * 10 + 10) + (5 * 4 + 4) + (4 * 5 + 5)
+
+
+def test_default_space_spans_the_crowd() -> None:
+    """Most crowd configs lie inside DEFAULT_SPACE (the rest are documented outliers)."""
+    spec = parse_spec({"study": {"name": "d", "n_trials": 1}, "space": space.DEFAULT_SPACE})
+    inside = total = 0
+    for row in _crowd_rows():
+        try:
+            config = _crowd_config(row)
+            params = space.encode(spec, config)
+        except (ConfigError, SpecError):
+            continue
+        total += 1
+        inside += not space.outside(spec, params)
+    assert inside >= 0.85 * total, f"only {inside}/{total} crowd configs inside DEFAULT_SPACE"

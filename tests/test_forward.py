@@ -9,6 +9,7 @@ import pytest
 
 from autotune.convnet.forward import flatten, forward, greedy_actions
 from autotune.convnet.netjson import NetSettings
+from autotune.convnet.random import build_draws, gauss_skip, replay_build
 from autotune.convnet.spec import (
     FC,
     LRN,
@@ -26,7 +27,7 @@ from autotune.convnet.spec import (
     init_convnet,
 )
 from autotune.convnet.torch_bridge import build_torch, from_torch, to_torch
-from autotune.learner.brain_policy import BrainPolicy, build_draws, gauss_skip, replay_build
+from autotune.learner.brain_policy import BrainPolicy
 from sim.rng import mulberry32_advance, mulberry32_next, mulberry32_stream
 
 

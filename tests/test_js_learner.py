@@ -216,3 +216,18 @@ def test_original_stream_with_agents_is_reproducible() -> None:
     assert a.agent_decisions > 0
     assert a.training_run_scores == b.training_run_scores
     assert a.training_run_scores != c.training_run_scores
+
+
+def test_fast_paths_hold_to_the_replicas_decision_rules():
+    """The shared routines of the fast paths (``autotune.convnet.random`` / ``.deepqlearn``) against the
+    replica's own copies: same draws consumed, same cache flags."""
+    import numpy as np
+
+    from autotune.convnet.random import gauss_skip as fast_skip
+    from autotune.learner.js_learner import gauss_skip as replica_skip
+
+    for state in (1, 2000, 123456789):
+        for cache in (0, 1):
+            for n in (0, 1, 2, 7, 64, 333):
+                a, b = np.array([state], dtype=np.int64), np.array([state], dtype=np.int64)
+                assert fast_skip(a, 0, cache, n) == replica_skip(b, 0, cache, n) and a[0] == b[0], (state, cache, n)

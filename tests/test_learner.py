@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from autotune.convnet import spec
-from autotune.learner.brain import DeepQLearner, js_argmax_rows, js_epsilon
+from autotune.convnet.deepqlearn import js_argmax_rows, js_epsilon
+from autotune.learner.brain import DeepQLearner
 from autotune.learner.config import TrainConfig
 from autotune.learner.quick_eval import GreedyPolicy
 from autotune.learner.training import (

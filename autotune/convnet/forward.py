@@ -191,18 +191,6 @@ def forward_flat(codes: np.ndarray, params: np.ndarray, x: np.ndarray, buf: np.n
     return src
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def argmax_js(buf: np.ndarray, k: int, n: int) -> int:
-    """deepqlearn's greedy choice: scan 0…n−1 with strict ``>`` (ties → lowest; NaN never wins)."""
-    best = 0
-    val = buf[k, 0]
-    for j in range(1, n):
-        if buf[k, j] > val:
-            best = j
-            val = buf[k, j]
-    return best
-
-
 @njit(cache=True, error_model="numpy")
 def forward_batch_flat(codes: np.ndarray, params: np.ndarray, xs: np.ndarray, out: np.ndarray, max_width: int) -> None:
     buf = np.empty((2, max_width))

@@ -404,7 +404,7 @@ def init_convnet(layers: Sequence[Layer], seed: int = 0) -> ConvNet:
     """Fresh convnetjs-style parameters: weights N(0, std √(1/fan_in)), biases = ``bias_pref``.
 
     Uses numpy's generator (not the JS stream); for a JS-exact initialisation see
-    ``autotune.learner.brain_policy.build_draws`` (the draw count) — the values themselves are never needed
+    ``autotune.convnet.random.build_draws`` (the draw count) — the values themselves are never needed
     for evaluation because trained weights replace them.
     """
     layers = tuple(layers)

@@ -6,7 +6,8 @@ from typing import Any
 
 import numpy as np
 
-from autotune.learner.brain import BLOCK, DeepQLearner, js_argmax_rows, js_epsilon
+from autotune.convnet.deepqlearn import js_argmax_rows, js_epsilon
+from autotune.learner.brain import BLOCK, DeepQLearner
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
 from autotune.learner.js_learner import OriginalStream
 from autotune.learner.kernel import numpy_forward_ops

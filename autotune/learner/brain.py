@@ -42,12 +42,12 @@ import math
 import numpy as np
 import torch
 
+from autotune.convnet.deepqlearn import js_epsilon
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
 from autotune.learner.js_learner import OriginalStream
 from autotune.learner.kernel import NP_DTYPES, TORCH_DTYPES, Kernel, build_network, numpy_forward_ops
-from sim.grid import js_max, js_min
 
-__all__ = ["DeepQLearner", "DivergedError", "js_epsilon", "js_argmax_rows", "BLOCK"]
+__all__ = ["DeepQLearner", "DivergedError", "BLOCK"]
 
 
 BLOCK = 4096  # pre-drawn uniforms per refill
@@ -55,30 +55,6 @@ BLOCK = 4096  # pre-drawn uniforms per refill
 
 class DivergedError(RuntimeError):
     """The network produced a non-finite Q-value or loss; ``train`` catches it into ``TrainResult``."""
-
-
-def js_epsilon(age: int, burnin: int, total: int, epsilon_min: float) -> float:
-    """``min(1, max(ε_min, 1 − (age − burnin)/(total − burnin)))`` with JS arithmetic (x/0 = ±∞, 0/0 = NaN)."""
-    num = float(age - burnin)
-    den = float(total - burnin)
-    if den == 0.0:
-        frac = math.nan if num == 0.0 else math.copysign(math.inf, num)
-    else:
-        frac = num / den
-    return js_min(1.0, js_max(epsilon_min, 1.0 - frac))
-
-
-def js_argmax_rows(q: np.ndarray) -> np.ndarray:
-    """deepqlearn's greedy scan per row: strict ``>`` from index 0 (ties → lowest; NaN never wins, NaN Q₀ → 0)."""
-    actions = q.argmax(axis=1)
-    bad = ~np.isfinite(q).all(axis=1)
-    for r in np.flatnonzero(bad):
-        best, val = 0, q[r, 0]
-        for k in range(1, q.shape[1]):
-            if q[r, k] > val:
-                best, val = k, q[r, k]
-        actions[r] = best
-    return actions
 
 
 # --------------------------------------------------------------------------------------------

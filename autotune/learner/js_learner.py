@@ -12,7 +12,7 @@ statistically. What makes that possible (spec §10.6):
   attempt, one global cached value) even when its values are overwritten at once; ``policy()``
   allocates one per call, and every training sample allocates one for s₀. Only the *count* of
   those draws and the cache flag matter, so they are skipped without computing logarithms
-  (``brain_policy.gauss_skip``); the weight initialisation needs the values
+  (``gauss_skip``, the replica's own copy); the weight initialisation needs the values
   (``_init_weights``: ``u·√(−2 ln r / r)``, the cached ``v·√(…)`` next);
 * sums run in convnetjs's order with no fused multiply-add and no re-association: fc
   ``a = 0; a += x_d·w_id; a += b_i``; backward ``dx_d += w_id·g_i`` and ``dw_id += x_d·g_i`` per
@@ -57,7 +57,6 @@ import numpy as np
 from numba import njit
 
 from autotune.convnet.spec import FC, ConvNet, Input, Regression, Relu, Sigmoid, Tanh, fc_bias_prefs
-from autotune.learner.brain_policy import gauss_skip
 from autotune.learner.config import TrainConfig
 from sim import engine
 from sim.config import ConfigError
@@ -92,6 +91,24 @@ def draws_between(state0: int, state1: int) -> int:
 # --------------------------------------------------------------------------------------------
 # Gaussians (convnetjs gaussRandom / randn)
 # --------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def gauss_skip(mr: np.ndarray, w: int, cache: int, n: int) -> int:
+    """The replica's own ``n`` discarded ``gaussRandom()`` calls (the fast paths' copy is
+    ``autotune.convnet.random.gauss_skip``; tests hold it to this one); returns the new cache flag."""
+    if n <= 0:
+        return cache
+    m = n - 1 if cache != 0 else n  # values still needed after using a cached one
+    for _ in range((m + 1) // 2):
+        while True:
+            u = 2.0 * mrand(mr, w) - 1.0
+            v = 2.0 * mrand(mr, w) - 1.0
+            r = u * u + v * v
+            if r == 0.0 or r > 1.0:
+                continue
+            break
+    return 1 if m % 2 == 1 else 0
 
 
 @njit(cache=True, error_model="numpy")

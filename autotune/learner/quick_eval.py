@@ -8,7 +8,7 @@ import numba
 import numpy as np
 import torch
 
-from autotune.learner.brain import js_argmax_rows
+from autotune.convnet.deepqlearn import js_argmax_rows
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
 from sim.protocols import EvalResult, evaluate
 

@@ -1,4 +1,4 @@
-"""The learner: a deepqlearn-faithful DQN in torch, and the DeepTraffic training protocol.
+"""The brain: a deepqlearn-faithful DQN in torch (``DeepQLearner``: act, store, learn per decision).
 
 What is reproduced from convnetjs ``deepqlearn.js`` (engine_spec.md §10, v2 §13) — the behaviour,
 not the code:

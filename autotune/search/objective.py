@@ -1,0 +1,227 @@
+"""The trial objective: train one configuration from its seed, report the curve, score it officially.
+
+``run_trial(task, report)`` is everything a trial does, with no Optuna and no Ray in it, so the
+same function runs in a test, in a notebook and inside a Ray worker. The caller supplies
+``report(step, frames, quick_score) -> prune?``: the driver turns it into ``trial.report`` +
+``trial.should_prune`` on the far side of a Ray round trip; a test can pass a lambda.
+
+How a trial ends (``TrialOutcome.state``):
+
+* ``"complete"`` — trained to the end and scored with the ruleset's official protocol (exact; the
+  value is the site's median for v2-official, the same statistic for v1-original);
+* ``"pruned"`` — the pruner said so at a report, the net diverged (non-finite Q or loss), or the
+  per-trial wall-time limit passed (checked about every 1 % of training and before the official
+  evaluation); ``cause`` says which;
+* ``"failed"`` — the objective raised; ``cause`` holds the traceback. (A worker that dies is the
+  driver's business: it never gets to return an outcome.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import socket
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "TrialTask", "TrialOutcome", "Report", "run_trial", "worker_id", "process_start", "process_alive",
+    "COMPLETE", "PRUNED", "FAILED",
+]  # fmt: skip
+
+COMPLETE, PRUNED, FAILED = "complete", "pruned", "failed"
+
+Report = Callable[[int, int, float], bool]
+"""``report(step k, training frames so far, quick score)`` → True to prune the trial now."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrialTask:
+    """Everything a worker needs to run one trial (plain data: it crosses a Ray call)."""
+
+    number: int
+    """Optuna trial number (for messages)."""
+    config: dict[str, Any]
+    """``TrainConfig.to_mapping()`` of the trial: the real values it trains with."""
+    seed: int
+    """The trial's training seed (all randomness of ``train`` derives from it)."""
+    report_points: int = 10
+    """Intermediate scores, at (k+1)/report_points of training."""
+    quick_runs: int = 20
+    """Runs per intermediate (quick) score."""
+    quick_frames: int = 2000
+    """Frames per quick run."""
+    final_protocol: str = ""
+    """Protocol of the final score; '' = the ruleset's official one."""
+    timeout_s: float | None = None
+    """Wall-time limit of the whole trial [s] (training + evaluations); None: none."""
+
+
+@dataclasses.dataclass
+class TrialOutcome:
+    """How a trial ended and the record the driver stores (user attrs of the contract's "Trial records")."""
+
+    number: int
+    state: str
+    """``COMPLETE``, ``PRUNED`` or ``FAILED``."""
+    value: float | None
+    """The official score [mph] (complete trials only)."""
+    cause: str | None
+    """Why the trial was pruned or failed (None when complete)."""
+    attrs: dict[str, Any]
+    """JSON-ready user attrs: config, settings, seed, curve, sizes, frames, timings, official stats, worker."""
+    net_json: str | None = None
+    """convnetjs Net JSON text of the trained net (complete trials)."""
+    net_js: str | None = None
+    """A net.js for the DeepTraffic page with the weights (complete trials)."""
+    cpu_seconds: float = 0.0
+    """Process CPU time the trial used (training + evaluations), for utilisation figures."""
+    wall_seconds: float = 0.0
+    """Wall time of the trial inside the worker."""
+
+
+class _TrialTimeout(Exception):
+    """Raised from ``train``'s progress hook when the trial's wall-time limit has passed."""
+
+
+def worker_id() -> str:
+    """``host:pid`` of this process (stored with every trial it runs)."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def process_start(pid: int) -> float | None:
+    """Start time of process ``pid`` (clock ticks since boot, from /proc), None if it does not exist.
+
+    (pid, start) identifies a process for good: a recycled pid has a later start. Without /proc
+    (not Linux) the start is 0.0 for any existing pid.
+    """
+    try:
+        stat = Path(f"/proc/{int(pid)}/stat").read_text()
+        return float(stat[stat.rindex(")") + 2 :].split()[19])  # field 22 of proc(5), after "pid (comm) "
+    except FileNotFoundError:
+        if Path("/proc/self/stat").exists():
+            return None
+    except (OSError, ValueError, IndexError):
+        return None
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return None
+    except PermissionError:
+        pass
+    return 0.0
+
+
+def process_alive(pid: int, start: float | None) -> bool:
+    """True when process ``pid`` exists and (``start`` given) is the one that started at ``start``."""
+    now = process_start(pid)
+    return now is not None and (start is None or now == start or now == 0.0)
+
+
+def _finite(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def run_trial(task: TrialTask, report: Report) -> TrialOutcome:
+    """Train ``task``'s config from its seed, forwarding each quick score to ``report``; score it if it ends."""
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    attrs: dict[str, Any] = {"source": "autotune", "seed": int(task.seed), "worker": worker_id(), "diverged": False}
+
+    def finish(state: str, value: float | None, cause: str | None, **texts: str | None) -> TrialOutcome:
+        if cause is not None:
+            attrs["cause"] = cause
+        return TrialOutcome(
+            task.number, state, value, cause, attrs, texts.get("net_json"), texts.get("net_js"),
+            cpu_seconds=time.process_time() - c0, wall_seconds=time.perf_counter() - t0,
+        )  # fmt: skip
+
+    try:
+        return _run(task, report, attrs, t0, finish)
+    except _TrialTimeout as exc:
+        return finish(PRUNED, None, str(exc))
+    except Exception as exc:  # the objective's own failure: a FAIL state with the traceback, never a silent zero
+        tb = traceback.format_exc(limit=8)
+        return finish(FAILED, None, f"{type(exc).__name__}: {exc}\n{tb}")
+
+
+def _run(
+    task: TrialTask,
+    report: Report,
+    attrs: dict[str, Any],
+    t0: float,
+    finish: Callable[..., TrialOutcome],
+) -> TrialOutcome:
+    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, net_settings, official_protocol
+
+    # not ``from autotune import train``: that name is also the ``autotune.train`` shim module, and once
+    # the shim is imported the package attribute is the module, not the function
+    from autotune.learner.training import train
+    from autotune.search.space import param_count
+
+    config = TrainConfig.from_mapping(task.config)
+    protocol = task.final_protocol or official_protocol(config)
+    attrs.update(
+        config=config.to_mapping(),
+        settings=config.to_deepqlearn(),
+        input_size=config.net_inputs,
+        num_states=config.num_states,
+        param_count=param_count(config),
+        official_protocol=protocol,
+    )
+    deadline = t0 + task.timeout_s if task.timeout_s else math.inf
+    limit = f"timeout: trial wall time exceeded trial_timeout_s = {task.timeout_s:g} s" if task.timeout_s else ""
+    curve: list[dict[str, Any]] = []
+    attrs["curve"] = curve
+    pruned_at: list[int] = []
+
+    def reporter(k: int, frames: int, quick_score: float) -> bool:
+        curve.append({"step": k, "frames": int(frames), "quick_score": _finite(quick_score)})
+        if time.perf_counter() > deadline:
+            raise _TrialTimeout(f"{limit} (at report {k}, {frames:,} frames)")
+        if report(k, int(frames), float(quick_score)):
+            pruned_at.append(k)
+            return True
+        return False
+
+    def progress(done: int, total: int) -> None:
+        if time.perf_counter() > deadline:
+            raise _TrialTimeout(f"{limit} (training at {done:,} of {total:,} frames)")
+
+    try:
+        result = train(
+            config, task.seed, reporter, report_points=task.report_points, quick_eval_runs=task.quick_runs,
+            quick_eval_frames=task.quick_frames, progress=progress,
+        )  # fmt: skip
+    finally:
+        quick_frames = len(curve) * task.quick_runs * task.quick_frames
+        attrs["frames_simulated"] = quick_frames  # + training frames below (kept right on a timeout too)
+    attrs["frames_simulated"] = result.frames + quick_frames
+    attrs["train_seconds"] = result.train_seconds
+    attrs["quick_eval_seconds"] = result.wall_seconds - result.train_seconds
+    if result.diverged:
+        attrs["diverged"] = True
+        return finish(PRUNED, None, f"diverged: {result.diverged_reason}")
+    if pruned_at:
+        return finish(PRUNED, None, f"pruned at step {pruned_at[0]} by the pruner")
+    if result.stopped:  # pragma: no cover - only the reporter stops training, and it always records why
+        return finish(PRUNED, None, f"stopped: {result.stop_reason}")
+    if time.perf_counter() > deadline:
+        raise _TrialTimeout(f"{limit} (before the official evaluation)")
+
+    te = time.perf_counter()
+    convnet = result.convnet()
+    ev = evaluate_official(convnet, config, protocol=protocol)
+    net_json = dumps_net(convnet)
+    net_js = export_netjs(convnet, net_settings(config))
+    attrs["eval_seconds"] = time.perf_counter() - te
+    attrs["frames_simulated"] += ev.runs * ev.frames
+    attrs.update(official_mean=ev.mean, official_std=ev.std)
+    value = ev.median_site
+    if not math.isfinite(value):  # pragma: no cover - scores are finite speeds
+        return finish(FAILED, None, f"official score is not finite: {value!r}")
+    return finish(COMPLETE, float(value), None, net_json=net_json, net_js=net_js)

@@ -171,8 +171,11 @@ def check_page(path: str | Path, screenshot: str | Path | None = None, *, timeou
             )
             shot: Path | None = None
             if screenshot is not None:
-                height = int(driver.execute_script("return document.documentElement.scrollHeight") or WINDOW[1])
-                driver.set_window_size(WINDOW[0], min(max(height, WINDOW[1]), MAX_SCREENSHOT_HEIGHT))
+                height, chrome = driver.execute_script(
+                    "return [document.documentElement.scrollHeight, window.outerHeight - window.innerHeight]"
+                )
+                total = int(height or WINDOW[1]) + int(chrome or 0)  # the window includes the browser's own bars
+                driver.set_window_size(WINDOW[0], min(max(total, WINDOW[1]), MAX_SCREENSHOT_HEIGHT))
                 time.sleep(0.3)  # let plotly's resize handlers settle
                 shot = Path(screenshot)
                 shot.parent.mkdir(parents=True, exist_ok=True)

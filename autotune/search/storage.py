@@ -22,6 +22,7 @@ import dataclasses
 import difflib
 import os
 import re
+import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,7 @@ JOURNAL_SUFFIXES = (".log", ".journal")
 HEARTBEAT_INTERVAL_S = 20  # a RUNNING trial's owner writes a heartbeat this often …
 GRACE_PERIOD_S = 90  # … and a trial silent for this long is failed as stale by the next driver
 CONNECT_TIMEOUT_S = 5  # a server that does not answer fails the command in seconds, not minutes
+_CREATE_ATTEMPTS = 4  # RDBStorage creation tries when drivers race to create the tables
 _STUDY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 _DRIVERS = {"postgresql": "postgresql+psycopg", "postgres": "postgresql+psycopg"}  # bare scheme -> installed driver
 
@@ -167,9 +169,7 @@ def _open_rdb(url: str, shown: str, heartbeat: bool) -> tuple[RDBStorage, str]:
     if heartbeat:
         beat = {"heartbeat_interval": HEARTBEAT_INTERVAL_S, "grace_period": GRACE_PERIOD_S}
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)  # heartbeat_interval
-            storage = RDBStorage(parsed.render_as_string(hide_password=False), engine_kwargs=engine_kwargs, **beat)
+        storage = _create_rdb(parsed.render_as_string(hide_password=False), engine_kwargs, beat)
     except NoSuchModuleError:
         raise StorageError(
             f"storage '{shown}': SQLAlchemy has no database driver '{parsed.drivername}'; "
@@ -182,6 +182,28 @@ def _open_rdb(url: str, shown: str, heartbeat: bool) -> tuple[RDBStorage, str]:
         }.get(dialect, "check the URL and that the database server is running")
         raise StorageError(f"storage '{shown}': cannot connect ({_reason(_root_cause(exc))}); {fix}") from None
     return storage, dialect
+
+
+def _create_rdb(url: str, engine_kwargs: dict[str, Any], beat: dict[str, Any]) -> RDBStorage:
+    """``RDBStorage(url)``, retried when another process creates Optuna's tables at the same moment.
+
+    Two drivers started together on an empty database both run ``CREATE TABLE``; the loser gets a
+    duplicate-object error (PostgreSQL: unique violation on pg_type). The tables exist by then, so a
+    second attempt just finds them.
+    """
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
+
+    for attempt in range(_CREATE_ATTEMPTS):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)  # heartbeat_interval
+                return RDBStorage(url, engine_kwargs=engine_kwargs, **beat)
+        except (IntegrityError, ProgrammingError) as exc:
+            text = str(exc).lower()
+            if attempt + 1 == _CREATE_ATTEMPTS or ("already exists" not in text and "duplicate" not in text):
+                raise
+            time.sleep(0.2 * (attempt + 1))
+    raise AssertionError("unreachable")
 
 
 def _root_cause(exc: BaseException) -> BaseException:

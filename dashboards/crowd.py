@@ -158,7 +158,7 @@ def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | N
     }
     if own is not None:
         attrs["own_net_score"] = own["score"]
-        attrs["own_net_protocol"] = own["protocol"]
+        attrs["own_net_protocol"] = own.get("protocol")
     return attrs
 
 

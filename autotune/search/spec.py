@@ -659,7 +659,11 @@ def _int(value: Any, what: str, lo: int, hi: int) -> int:
 
 
 def _pos_int(value: Any, what: str) -> int:
-    return _int(value, what, 1, 2**63 - 1)
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise SpecError(f"{what}: must be a positive integer, got {value!r}; e.g. 2")
+    return value
 
 
 def _float(value: Any, what: str, lo: float, hi: float) -> float:

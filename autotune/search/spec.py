@@ -271,9 +271,11 @@ def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: s
     """Validate the tables of a study (a parsed TOML or ``StudySpec.to_dict()``) into a ``StudySpec``."""
     for key, value in data.items():
         if key not in SECTIONS:
-            owner = next((s for s in SECTIONS if s != "fixed" and key in _SECTION_KEYS.get(s, ())), None)
-            if owner is not None and not isinstance(value, Mapping):
-                raise SpecError(f"{source}: {key}: a key outside any table; move it under [{owner}]")
+            if not isinstance(value, Mapping):
+                owner = next((s for s in _SECTION_KEYS if key in _SECTION_KEYS[s]), None)
+                owner = owner or ("fixed" if key in _FIXED_KEYS else None)
+                fix = f"move it under [{owner}]" if owner else f"put it in one of the tables {', '.join(SECTIONS)}"
+                raise SpecError(f"{source}: {key}: a key outside any table; {fix}")
             raise SpecError(f"{source}: [{key}]: unknown table{_hint(key, SECTIONS)} (tables: {', '.join(SECTIONS)})")
         if not isinstance(value, Mapping):
             raise SpecError(f"{source}: [{key}]: must be a table, got {value!r}; write it as [{key}] with keys below")

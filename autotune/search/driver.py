@@ -22,6 +22,7 @@ the grace period) and retries them; nothing a dead driver finished is touched.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 import os
 import socket
@@ -49,6 +50,7 @@ from autotune.search.objective import (
 )
 from autotune.search.spec import StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
+from sim.config import ConfigError
 
 __all__ = ["Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "OWNER_ATTR"]
 
@@ -92,6 +94,9 @@ def trial_seed(study_seed: int, number: int) -> int:
 def make_sampler(spec: StudySpec, seed: int) -> optuna.samplers.BaseSampler:
     """The spec's sampler, seeded; TPE multivariate, grouped (define-by-run layout), constant liar in parallel."""
     name = spec.study.sampler
+    needs = {"cmaes": "cmaes", "gp": "scipy"}.get(name)
+    if needs is not None and importlib.util.find_spec(needs) is None:
+        raise ConfigError(f"{spec.source}: [study] sampler: '{name}' needs the '{needs}' package; pip install {needs}")
     s = optuna.samplers
     if name == "tpe":
         return s.TPESampler(
@@ -180,6 +185,8 @@ class Driver:
     # -- the study ------------------------------------------------------------------------
     def open_study(self) -> optuna.Study:
         """Create the study or load it (same name), store the spec, fail the orphans of dead drivers."""
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
         storage = self.storages.storage
         name = self.spec.study.name
         previous = [s for s in storage.get_all_studies() if s.study_name == name]
@@ -276,8 +283,6 @@ class Driver:
         """Run the study until its budget (n_trials / timeout_s) is spent; returns the final counts."""
         from autotune.search.workers import WorkerPool
 
-        optuna.logging.set_verbosity(optuna.logging.WARNING)
-        warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
         if self.study is None:
             self.open_study()
         self._t0 = time.perf_counter()

@@ -68,13 +68,15 @@ def run(args: argparse.Namespace) -> int:
         storages = open_storage(spec.study.storage, spec.study.name, artifacts=args.artifacts)
         if args.address is not None:
             _check_address(args.address)
+        from autotune.search.driver import Driver, StudyCounts
+
+        driver = Driver(spec, storages, address=args.address)
+        driver.open_study()  # create or resume; the sampler is built here (a missing package fails now)
     except ConfigError as exc:
         return _error(str(exc).splitlines()[0])
 
-    from autotune.search.driver import Driver, StudyCounts
-
     bar = None if args.quiet else _Bar(spec.study.name, spec.study.n_trials)
-    driver = Driver(spec, storages, address=args.address, progress=bar.update if bar else None)
+    driver.progress = bar.update if bar else None
     try:
         counts: StudyCounts = driver.run()
     except KeyboardInterrupt:

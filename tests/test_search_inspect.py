@@ -227,3 +227,31 @@ def test_dashboard_serves_the_study(journal_study):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_evaluate_trial_rescores_and_says_when_the_score_differs(journal_study, capsys):
+    storage, study, _ = journal_study
+    # make_study stored untrained nets with made-up values: the exact re-score must not match them
+    code, out, err = run_cli(capsys, "evaluate", "--trial", f"{study}:1", "--storage", storage, "--json")
+    assert code == 1, err
+    rep = json.loads(out)
+    assert rep["stored"] == VALUES[1] and rep["reproduced"] != VALUES[1] and rep["identical"] is False
+    assert rep["how"] == "rescore" and rep["protocol"] == "v2-official" and rep["seed"] == 1001
+
+
+@pytest.mark.parametrize(
+    ("argv", "expect"),
+    [
+        (["--trial", "demo:2"], "trial 2 is PRUNED; only COMPLETE trials have an official score to reproduce"),
+        (["--trial", "demo:9"], "no trial 9 (trials are numbered 0 … 3)"),
+        (["--trial", "demo"], "--trial: expected STUDY:N (e.g. quick:12), got 'demo'"),
+        (["--trial", "dmeo:1"], "no study 'dmeo'; did you mean 'demo'?"),
+        (["--retrain"], "--retrain: needs --trial STUDY:N"),
+        (["--trial", "demo:1", "--net", "x.json"], "--trial: takes the net from the study; drop --net/--config"),
+        ([], "--net: required (or --trial STUDY:N)"),
+    ],
+)
+def test_evaluate_trial_bad_input(journal_study, capsys, argv, expect):
+    storage, _, _ = journal_study
+    code, out, err = run_cli(capsys, "evaluate", *argv, "--storage", storage)
+    assert code == 2 and out == "" and err.count("\n") == 1 and expect in err

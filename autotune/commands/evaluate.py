@@ -5,6 +5,10 @@
     autotune evaluate --net NET.json [--config NET.config.json] [--ruleset v1|v2]
         [--protocol v2-official|v1-original|v1-distribution|custom] [--seed S] [--other-agents N]
         [--runs R --frames F] [--threads T] [--gauss-cache 0|1] [--no-engine-load] [--json]
+    autotune evaluate --trial STUDY:N [--storage URL] [--retrain] [--json]
+
+(``--trial``: a study's trial, its stored net re-scored — or with ``--retrain`` trained again from its
+seed — and compared with its stored official score: exit 0 if identical, 1 if not.)
 
 Defaults: config = ``<net>.config.json``; ruleset = the protocol's, else the net's own engine
 (v2 iff its config sets ``otherAgents``); protocol = that ruleset's official one (v2-official /
@@ -21,6 +25,8 @@ import argparse
 import json
 import sys
 from typing import Any
+
+from autotune.search.inspect_cli import add_trial_arguments, evaluate_trial
 
 PROTOCOL_ALIASES = {
     "v2-official": "v2-official",
@@ -44,7 +50,7 @@ def add_parser(subparsers: Any) -> None:
         help="evaluate a trained convnetjs net exactly as the original",
         description="Evaluate a trained convnetjs DeepTraffic net in the exact simulator (original JS scores).",
     )
-    p.add_argument("--net", required=True, help="convnetjs Net JSON (the argument of value_net.fromJSON)")
+    p.add_argument("--net", help="convnetjs Net JSON (the argument of value_net.fromJSON); or --trial STUDY:N")
     p.add_argument("--config", help="DeepTraffic settings JSON (default: <net>.config.json beside the net)")
     p.add_argument("--ruleset", choices=("v1", "v2"), help="engine (default: the protocol's, else the net's own)")
     p.add_argument(
@@ -73,6 +79,7 @@ def add_parser(subparsers: Any) -> None:
         "harness; evaluate.js has them)",
     )
     p.add_argument("--json", action="store_true", help="print the result as one JSON object on the last line")
+    add_trial_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -117,6 +124,11 @@ def evaluate(args: argparse.Namespace) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and print; 0, or 2 after a one-line error for bad input."""
+    if args.trial is not None or args.retrain:
+        return evaluate_trial(args)  # a study's trial: 0 if its score is reproduced, else 1
+    if args.net is None:
+        print("error: --net: required (or --trial STUDY:N)", file=sys.stderr)
+        return 2
     from autotune.convnet.netjson import NetFormatError
     from autotune.convnet.spec import NetSpecError
     from sim.config import ConfigError

@@ -157,6 +157,57 @@ def _dashboard(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- autotune evaluate --trial STUDY:N [--retrain] -------------------------------------------------
+def add_trial_arguments(p: argparse.ArgumentParser) -> None:
+    """``autotune evaluate``'s options that take the net from a study's trial instead of ``--net``."""
+    p.add_argument(
+        "--trial",
+        metavar="STUDY:N",
+        help="a study's COMPLETE trial: evaluate its stored net again (with --retrain: train it again from its "
+        "seed) and compare with its stored official score; exit status 1 if they differ",
+    )
+    p.add_argument("--storage", default="", help="--trial: the study's storage (default: runs/<study>/journal.log)")
+    p.add_argument("--artifacts", help="--trial: the study's artifact directory (default: beside its storage)")
+    p.add_argument("--retrain", action="store_true", help="--trial: retrain its config with its seed, then score it")
+
+
+def evaluate_trial(args: argparse.Namespace) -> int:
+    """``autotune evaluate --trial STUDY:N [--retrain]``: reproduce a trial's official score; 0 if identical, else 1."""
+    from autotune.search.records import rescore_trial, retrain_trial, study_resources
+    from sim.config import ConfigError
+
+    try:
+        if args.trial is None:
+            raise ConfigError("--retrain: needs --trial STUDY:N")
+        if args.net is not None or args.config is not None:
+            raise ConfigError("--trial: takes the net from the study; drop --net/--config")
+        study, sep, number = args.trial.rpartition(":")
+        if not sep or not study or not number.isdigit():
+            raise ConfigError(f"--trial: expected STUDY:N (e.g. quick:12), got '{args.trial}'")
+        storages = _open(args, study)
+        if args.retrain:
+            cpus = int(study_resources(storages, study).get("cpus_per_trial", 1) or 1)
+            from autotune import configure_process
+
+            configure_process(threads=max(1, cpus), numba_threads=max(1, cpus))  # as the study's workers ran
+            rep = retrain_trial(storages, study, int(number))
+        else:
+            rep = rescore_trial(storages, study, int(number))
+    except ConfigError as exc:  # RecordError included: exit status 1 means "not reproduced" only
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    if args.json:
+        print(json.dumps(rep.to_json()))
+    else:
+        what = f"retrained from seed {rep.seed}" if rep.how == "retrain" else "its stored net re-scored"
+        verdict = "identical" if rep.identical else f"DIFFERENT by {rep.reproduced - rep.stored:+.6g}"
+        print(
+            f"trial {rep.number} of {rep.study} ({rep.protocol}): stored {rep.stored!r} mph, {what}: "
+            f"{rep.reproduced!r} mph — {verdict} ({rep.wall_seconds:.1f} s)"
+        )
+    return 0 if rep.identical else 1
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the chosen inspection; 0, 1 when there is no record to show yet, 2 after a one-line error."""
     from autotune.search.records import RecordError

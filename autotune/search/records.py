@@ -7,6 +7,7 @@ Everything here reads a storage opened by ``storage.open_storage``; nothing writ
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import tempfile
 from collections.abc import Sequence
@@ -22,9 +23,12 @@ from sim.config import ConfigError
 
 __all__ = [
     "RecordError",
+    "Reproduction",
     "best_trial_record",
     "export_best",
     "export_trial",
+    "rescore_trial",
+    "retrain_trial",
     "study_summary",
     "trial_record",
 ]
@@ -213,3 +217,122 @@ def format_summary(summary: dict[str, Any]) -> Sequence[str]:
             f"over {summary['wall_seconds'] / 60:.1f} min ({summary['first_start']} → {summary['last_finish']}){prune}"
         )
     return lines
+
+
+# --------------------------------------------------------------------------------------------
+# reproducing a trial's score
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Reproduction:
+    """A trial's stored official score next to the one obtained again (by re-scoring or retraining)."""
+
+    study: str
+    number: int
+    stored: float
+    """The trial's value: its official score as the study recorded it [mph]."""
+    reproduced: float
+    """The score obtained now [mph]."""
+    protocol: str
+    """The official protocol both scores come from."""
+    seed: int
+    """The trial's training seed."""
+    how: str
+    """``"rescore"`` (the stored net evaluated again) or ``"retrain"`` (trained again from the seed)."""
+    wall_seconds: float
+    """Time the reproduction took."""
+
+    @property
+    def identical(self) -> bool:
+        """True when the scores are bit-identical (the objective is deterministic given the seed)."""
+        return self.stored == self.reproduced
+
+    def to_json(self) -> dict[str, Any]:
+        return {**dataclasses.asdict(self), "identical": self.identical}
+
+
+def _complete_trial(storages: Storages, study_name: str, number: int) -> tuple[optuna.Study, FrozenTrial]:
+    study = load_study(storages, study_name)
+    trial = _trial(study, number)
+    if trial.state != TrialState.COMPLETE or trial.value is None:
+        raise RecordError(
+            f"study '{study_name}': trial {number} is {trial.state.name}; only COMPLETE trials have an official "
+            "score to reproduce"
+        )
+    for key in ("config", "seed"):
+        if key not in trial.user_attrs:
+            raise RecordError(f"study '{study_name}': trial {number} has no stored {key} (user attr '{key}')")
+    return study, trial
+
+
+def rescore_trial(storages: Storages, study_name: str, number: int) -> Reproduction:
+    """Evaluate trial ``number``'s stored network again with its official protocol (exact, seconds)."""
+    import time
+
+    from autotune import TrainConfig, evaluate_official, loads_net, official_protocol
+
+    _, trial = _complete_trial(storages, study_name, number)
+    config = TrainConfig.from_mapping(trial.user_attrs["config"])
+    protocol = str(trial.user_attrs.get("official_protocol") or official_protocol(config))
+    text = _download(storages, trial, "artifact_net_json")
+    if text is None:
+        raise RecordError(f"trial {number}: no trained network stored (user attr artifact_net_json missing)")
+    t0 = time.perf_counter()
+    ev = evaluate_official(loads_net(text, where=f"trial {number} net.json"), config, protocol=protocol)
+    assert trial.value is not None
+    return Reproduction(
+        study_name, number, float(trial.value), float(ev.median_site), protocol, int(trial.user_attrs["seed"]),
+        "rescore", time.perf_counter() - t0,
+    )  # fmt: skip
+
+
+def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduction:
+    """Train trial ``number`` again — its stored config and seed, the study's report settings — and score it.
+
+    The call is the objective's own (``objective.run_trial`` with the task the driver built, never
+    pruned, no time limit), so a deterministic learner gives the stored score bit for bit. The
+    caller owns the process settings (``configure_process``) as a worker does.
+    """
+    import time
+
+    from autotune.search.objective import COMPLETE, TrialTask, run_trial
+
+    study, trial = _complete_trial(storages, study_name, number)
+    evaluation = _evaluation(study)
+    task = TrialTask(
+        number=number,
+        config=trial.user_attrs["config"],
+        seed=int(trial.user_attrs["seed"]),
+        report_points=int(evaluation.get("report_points", TrialTask.report_points)),
+        quick_runs=int(evaluation.get("quick_runs", TrialTask.quick_runs)),
+        quick_frames=int(evaluation.get("quick_frames", TrialTask.quick_frames)),
+        final_protocol=str(trial.user_attrs.get("official_protocol") or evaluation.get("final_protocol") or ""),
+        timeout_s=None,
+    )
+    t0 = time.perf_counter()
+    outcome = run_trial(task, lambda step, frames, score: False)
+    if outcome.state != COMPLETE or outcome.value is None:
+        cause = (outcome.cause or "").strip().splitlines()
+        raise RecordError(
+            f"study '{study_name}': retraining trial {number} ended {outcome.state} ({cause[-1] if cause else '?'})"
+        )
+    assert trial.value is not None
+    return Reproduction(
+        study_name, number, float(trial.value), float(outcome.value), str(outcome.attrs["official_protocol"]),
+        task.seed, "retrain", time.perf_counter() - t0,
+    )  # fmt: skip
+
+
+def _evaluation(study: optuna.Study) -> dict[str, Any]:
+    """The [evaluation] table the study ran with (the driver stores the spec as study user attr ``spec``)."""
+    spec = study.user_attrs.get("spec")
+    evaluation = spec.get("evaluation") if isinstance(spec, dict) else None
+    return evaluation if isinstance(evaluation, dict) else {}
+
+
+def study_resources(storages: Storages, study_name: str) -> dict[str, Any]:
+    """The [resources] table the study ran with ({} when the study has no stored spec)."""
+    spec = load_study(storages, study_name).user_attrs.get("spec")
+    resources = spec.get("resources") if isinstance(spec, dict) else None
+    return resources if isinstance(resources, dict) else {}

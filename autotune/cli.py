@@ -21,6 +21,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "autotune.search.launch_cli",
     "autotune.search.inspect_cli",
     "autotune.search.crowd_cli",
+    "dashboards.replay_cli",
 )
 
 

@@ -136,11 +136,12 @@ def _slice(rec: Recording, j: int) -> Image.Image:
     img = _cells_image(np.repeat(gray[:, :, None], 3, axis=2), cell_w, cell_h)
     ahead = rec.config.patches_ahead
     ls = rec.config.lanes_side
-    _outline(
-        ImageDraw.Draw(img),
-        (ls * cell_w, ahead * cell_h, (ls + 1) * cell_w - 1, min(ahead + 4, rows) * cell_h - 1),
-        (220, 40, 40),
-    )
+    if ahead < rows:  # the ego's own rows are in the slice (patches_behind > 0)
+        _outline(
+            ImageDraw.Draw(img),
+            (ls * cell_w, ahead * cell_h, (ls + 1) * cell_w - 1, min(ahead + 4, rows) * cell_h - 1),
+            (220, 40, 40),
+        )
     return img
 
 
@@ -207,7 +208,8 @@ def write_mp4(rec: Recording, path: str | Path, fps: float = 15.0, scale: float 
     import imageio.v2 as imageio
 
     out = Path(path)
-    with imageio.get_writer(out, fps=fps, codec="libx264", quality=7, macro_block_size=2) as writer:
+    writer: Any = imageio.get_writer(out, fps=fps, codec="libx264", quality=7, macro_block_size=2)
+    with writer:
         for im in frames(rec, scale):
             arr = np.asarray(im)
             h, w = arr.shape[0] - arr.shape[0] % 2, arr.shape[1] - arr.shape[1] % 2

@@ -286,6 +286,10 @@ class Driver:
         if self.study is None:
             self.open_study()
         self._t0 = time.perf_counter()
+        self._enqueue_retries()
+        if not self._launch_possible():  # the budget is spent already: no Ray at all
+            self._notify()
+            return self.counts
         r = self.spec.resources
         self.pool = WorkerPool(
             r.workers, cpus_per_trial=r.cpus_per_trial, gpus_per_trial=r.gpus_per_trial,
@@ -309,7 +313,6 @@ class Driver:
 
     def _loop(self) -> None:
         assert self.study is not None
-        self._enqueue_retries()
         last_note = time.perf_counter()
         while True:
             if not self._out_of_time():

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
+import autotune
 from autotune.cli import main
-from autotune.convnet.netjson import load
+from autotune.convnet.netjson import NetSettings, load
+from autotune.convnet.spec import ConvNet, init_convnet
 from autotune.learner.brain_policy import evaluate_net
 from dashboards.replay import (
     KIND_AGENT,
@@ -142,3 +144,55 @@ def test_replay_command_bad_input_is_one_line(tmp_path: Path, capsys: pytest.Cap
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 4 and all(line.startswith("error: ") for line in lines), lines
     assert "--out" in lines[0] and "--net" in lines[1] and "STUDY" in lines[2] and "every" in lines[3]
+
+
+# -- a study's trial ---------------------------------------------------------------------------------
+def _study_with_two_nets(storage: str) -> list[tuple[ConvNet, NetSettings]]:
+    """Study 'demo' at ``storage``: trials 0 and 1 COMPLETE (1 the best), each with a net.json artifact."""
+    import optuna
+    from optuna.distributions import FloatDistribution
+    from optuna.trial import TrialState, create_trial
+
+    from autotune.search.storage import open_storage
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storages = open_storage(storage, "demo")
+    study = optuna.create_study(study_name="demo", storage=storages.storage, direction="maximize")
+    config = autotune.preset("network_basic_v2").replace(otherAgents=2, layers="fc:6:tanh")
+    nets = []
+    for i, value in enumerate((60.0, 70.0)):
+        net = init_convnet(config.expanded_layers, seed=i)
+        upload = Path(storage).parent / f"net-{i}.json"
+        upload.write_text(autotune.dumps_net(net))
+        artifact = optuna.artifacts.upload_artifact(
+            artifact_store=storages.artifacts, file_path=str(upload), study_or_trial=study
+        )
+        study.add_trial(
+            create_trial(
+                state=TrialState.COMPLETE,
+                value=value,
+                params={"learning_rate": config.learning_rate},
+                distributions={"learning_rate": FloatDistribution(1e-5, 1.0, log=True)},
+                user_attrs={"source": "autotune", "config": config.to_mapping(), "artifact_net_json": artifact},
+            )
+        )
+        nets.append((net, autotune.net_settings(config)))
+    return nets
+
+
+def test_replay_command_draws_a_study_trial(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    storage = str(tmp_path / "s" / "journal.log")
+    nets = _study_with_two_nets(storage)
+    scores = [record_run(net, settings, frames=30).score for net, settings in nets]
+    for extra, number in (([], 1), (["--trial", "0"], 0)):  # the best trial by default
+        out = tmp_path / f"trial{number}.gif"
+        argv = ["replay", "demo", "--storage", storage, "--out", str(out), "--frames", "30", "--every", "10", *extra]
+        assert main(argv) == 0
+        printed = capsys.readouterr().out
+        assert f"run score {scores[number]:.2f} mph" in printed
+        assert ("demo best" if number == 1 else "demo trial 0") in printed
+        with Image.open(out) as im:
+            assert getattr(im, "n_frames", 1) == 3
+    assert main(["replay", "demo", "--storage", storage, "--trial", "7", "--out", str(tmp_path / "x.gif")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no trial 7" in err[0]

@@ -270,6 +270,7 @@ class WorkerPool:
             "driver_start": process_start(me),
             "session_dir": str(Path(ctx.get_temp_dir()) / ctx.get_session_name()),
             "processes": [{"pid": pid, "start": process_start(pid)} for pid in sorted(pids)],
+            "workers": [int(i["pid"]) if i else None for i in self._info],
         }
         self._record = self.state_dir / "ray" / f"{socket.gethostname()}-{me}.json"
         self._record.parent.mkdir(parents=True, exist_ok=True)

@@ -82,7 +82,7 @@ class Recording:
     running_score: np.ndarray
     """(T,) the run's score so far: mean of the score term over frames 0…G [mph]."""
     grid: np.ndarray
-    """(T, 7, 70) occupancy grid [lane, row]: ``free`` where empty, else the occupant's c·a (v1 ego: 10·c·a)."""
+    """(T, 7, 70) occupancy grid [lane, row]: ``free`` where empty, else the occupant's c·a (v1 ego: 10·c·a ≥ free)."""
     free: float
     """Grid value of an empty cell (v1 7, v2 100)."""
     safety_cells: np.ndarray

@@ -66,7 +66,8 @@ SAFETY_SCALE = [  # discrete: code k takes the band [k, k + 1)/N_CODES
 
 
 def _occupied(rec: Recording, grid: np.ndarray) -> np.ndarray:
-    return grid < rec.free
+    """Cells holding a car. Not ``grid < free``: the v1 ego is drawn with 10·c·a, usually ≥ 7 (v1 §3.3)."""
+    return grid != rec.free
 
 
 def _grid_rgb(rec: Recording, grid: np.ndarray) -> np.ndarray:
@@ -253,7 +254,7 @@ def _frame_traces(rec: Recording, j: int) -> list[dict[str, Any]]:
     )  # fmt: skip
     grid = rec.grid[j].T
     traces.append(
-        {"type": "heatmap", "z": np.where(grid < rec.free, np.round(grid, 3), np.nan), "x0": 0.5, "dx": 1,
+        {"type": "heatmap", "z": np.where(_occupied(rec, grid), np.round(grid, 3), np.nan), "x0": 0.5, "dx": 1,
          "y0": 0.5, "dy": 1, "zmin": 0, "zmax": CA_MAX, "colorscale": OCCUPANCY_SCALE, "showscale": False,
          "name": "occupancy (c·a)", "xaxis": "x2", "yaxis": "y2",
          "hovertemplate": "lane %{x:.0f}, row %{y:.0f}: c·a = %{z}<extra></extra>"}

@@ -372,6 +372,7 @@ class Driver:
             timeout_s=self.spec.study.trial_timeout_s,
         )  # fmt: skip
         trial.set_user_attr("worker", self.pool.worker_of(slot))
+        trial.set_user_attr("ray_node", self.pool.node_of(slot))
         self._running[slot] = _Running(trial, slot, task)
         self.pool.submit(slot, task)
         self._notify()

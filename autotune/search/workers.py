@@ -61,8 +61,9 @@ class TrialWorker:
         self._thread: threading.Thread | None = None
 
     def info(self) -> dict[str, Any]:
-        """Who runs the trials: host, pid and ``host:pid`` (tests SIGKILL this pid)."""
-        return {"host": socket.gethostname(), "pid": os.getpid(), "worker": worker_id()}
+        """Who runs the trials: host, pid, ``host:pid`` (tests SIGKILL this pid) and the Ray node id."""
+        node = ray.get_runtime_context().get_node_id()
+        return {"host": socket.gethostname(), "pid": os.getpid(), "worker": worker_id(), "node": node}
 
     def warm_up(self) -> float:
         """Run a tiny trial (compiles or loads every kernel a trial needs); returns its wall seconds."""
@@ -284,6 +285,10 @@ class WorkerPool:
     def worker_of(self, slot: int) -> str:
         """``host:pid`` of the worker in ``slot``."""
         return str(self._info[slot]["worker"])
+
+    def node_of(self, slot: int) -> str:
+        """The Ray node id of the worker in ``slot``."""
+        return str(self._info[slot]["node"])
 
     def pids(self) -> list[int]:
         """The worker processes' pids, by slot."""

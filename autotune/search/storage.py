@@ -256,7 +256,7 @@ def load_study(storages: Storages, study_name: str) -> optuna.Study:
     """The existing study ``study_name``; ``UnknownStudyError`` (one line, nearest names first) otherwise."""
     names = study_names(storages)
     if study_name not in names:
-        near = difflib.get_close_matches(study_name, names, n=len(names), cutoff=0.0)
+        near = difflib.get_close_matches(study_name, names, n=len(names), cutoff=0.0) if names else []
         hint = f"; did you mean '{near[0]}'?" if near else ""
         listed = ", ".join(near) if near else "none"
         raise UnknownStudyError(f"storage '{storages.url}': no study '{study_name}'{hint} (studies there: {listed})")

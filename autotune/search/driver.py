@@ -179,6 +179,8 @@ class Driver:
         self._running: dict[int, _Running] = {}  # slot -> trial
         self._t0 = 0.0
         self._last_beat = 0.0
+        self.startup_seconds = 0.0
+        """Seconds from ``run`` until every worker was warm (Ray start + worker warm-up)."""
         self.recovered: list[int] = []
         """Trial numbers of a dead driver failed on resume."""
 
@@ -297,6 +299,7 @@ class Driver:
         )  # fmt: skip
         try:
             self.pool.start()
+            self.startup_seconds = time.perf_counter() - self._t0
             self._notify()
             self._loop()
         finally:
@@ -389,6 +392,8 @@ class Driver:
             self.pool.answer(event.slot, prune)
             return
         del self._running[event.slot]
+        if event.kind == "done" and not self._out_of_time():
+            self._launch_next(event.slot)  # the worker starts its next trial before this one's storage writes
         if event.kind == "lost":
             self._fail(run.trial, event.cause, retryable=True)
             self._enqueue_retries()

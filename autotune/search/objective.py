@@ -135,9 +135,11 @@ def run_trial(task: TrialTask, report: Report) -> TrialOutcome:
     def finish(state: str, value: float | None, cause: str | None, **texts: str | None) -> TrialOutcome:
         if cause is not None:
             attrs["cause"] = cause
+        cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+        attrs.update(trial_cpu_seconds=cpu, trial_wall_seconds=wall)  # the worker's busy time (overhead bench)
         return TrialOutcome(
             task.number, state, value, cause, attrs, texts.get("net_json"), texts.get("net_js"),
-            cpu_seconds=time.process_time() - c0, wall_seconds=time.perf_counter() - t0,
+            cpu_seconds=cpu, wall_seconds=wall,
         )  # fmt: skip
 
     try:

@@ -220,3 +220,21 @@ def test_bad_arguments_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert "--workers" in _bad(tmp_path, capsys, str(SMOKE), "--workers", "0")
     assert "--address" in _bad(tmp_path, capsys, str(SMOKE), "--address", "nowhere")
     assert "missing.toml" in _bad(tmp_path, capsys, str(tmp_path / "missing.toml"))
+
+
+def test_timeout_budget_stops_starting_trials(tmp_path: Path) -> None:
+    """--timeout: no trial starts after it (the Ray start and warm-up count), running ones finish; exit 0."""
+    tag = uuid.uuid4().hex
+    spec = write_spec(tmp_path, "timed", study={"n_trials": 1000, "pruner": "none"}, resources={"workers": 1})
+    t0 = time.perf_counter()
+    rc, out, err = finish(launch(tmp_path, str(spec), "--timeout", "20", tag=tag))
+    wall = time.perf_counter() - t0
+    assert rc == 0, err[-3000:]
+    study = load(tmp_path, "timed")
+    check_finished_trials(study)
+    assert len(study.trials) < 1000 and all(t.state.is_finished() for t in study.trials)
+    last_start = max((t.datetime_start for t in study.trials if t.datetime_start), default=None)
+    if last_start is not None:  # nothing started later than the timeout after the driver began
+        first = min(t.datetime_start for t in study.trials if t.datetime_start)
+        assert (last_start - first).total_seconds() < 20
+    assert wall < 20 + 60 and tagged_processes(tag) == []

@@ -153,6 +153,9 @@ class _Running:
     trial: Trial
     slot: int
     task: TrialTask
+    started: float = dataclasses.field(default_factory=time.perf_counter)
+    killed: str = ""
+    """Why the driver killed the worker (a trial past its wall-time limit that stopped answering)."""
 
 
 class Driver:
@@ -189,6 +192,8 @@ class Driver:
         """Create the study or load it (same name), store the spec, fail the orphans of dead drivers."""
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+        # this driver records the heartbeats of its trials itself (``_heartbeat``), without Study.optimize
+        warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used with Study.optimize")
         storage = self.storages.storage
         name = self.spec.study.name
         previous = [s for s in storage.get_all_studies() if s.study_name == name]
@@ -330,9 +335,25 @@ class Driver:
             now = time.perf_counter()
             if now - self._last_beat >= HEARTBEAT_INTERVAL_S:
                 self._heartbeat()
+                self._kill_hung(now)
             if now - last_note >= 1.0:
                 last_note = now
                 self._notify()
+
+    def _kill_hung(self, now: float) -> None:
+        """Backstop of the per-trial limit: a worker silent well past it (stuck in native code) is killed.
+
+        The objective enforces ``trial_timeout_s`` itself at ~1 % steps of training and before the
+        official evaluation; only a worker that cannot get there is killed, and its trial fails
+        without a retry (the same params would hang again).
+        """
+        limit = self.spec.study.trial_timeout_s
+        for run in self._running.values():
+            if not run.killed and now - run.started > 2 * limit + HEARTBEAT_INTERVAL_S:
+                run.killed = (
+                    f"timeout: worker killed, no answer {now - run.started:.0f} s into a trial limited to {limit:g} s"
+                )
+                self.pool.kill(run.slot)
 
     def _launch_possible(self) -> bool:
         """True while a retry waits or the budget allows another original trial."""
@@ -395,7 +416,7 @@ class Driver:
         if event.kind == "done" and not self._out_of_time():
             self._launch_next(event.slot)  # the worker starts its next trial before this one's storage writes
         if event.kind == "lost":
-            self._fail(run.trial, event.cause, retryable=True)
+            self._fail(run.trial, run.killed or event.cause, retryable=not run.killed)
             self._enqueue_retries()
         else:
             self._finish(run.trial, event.outcome)

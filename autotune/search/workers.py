@@ -337,6 +337,10 @@ class WorkerPool:
                 events.append(Event("done", slot, outcome=value[1]))
         return events
 
+    def kill(self, slot: int) -> None:
+        """Kill the worker in ``slot`` (its pending call then reports it lost, and it is replaced)."""
+        ray.kill(self._actors[slot], no_restart=True)
+
     def _describe(self, slot: int, exc: BaseException) -> str:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         return f"{self.worker_of(slot)} died ({type(exc).__name__}: {first})"

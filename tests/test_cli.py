@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import subprocess
 import sys
@@ -11,7 +12,15 @@ import pytest
 from autotune import cli
 from tests.conftest import ROOT
 
-NAMES = [m.rpartition(".")[2] for m in cli.SUBCOMMANDS]
+
+def _subcommand_names() -> list[str]:
+    """Every registered subcommand (a module may add several)."""
+    parser = cli.build_parser()
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return list(action.choices)
+
+
+NAMES = _subcommand_names()
 
 
 def test_every_subcommand_module_has_the_interface() -> None:

@@ -20,7 +20,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "autotune.commands.evaluate",
     "autotune.search.launch_cli",
     "autotune.search.inspect_cli",
-    "autotune.search.crowd_cli",
+    "dashboards.crowd_cli",
     "dashboards.replay_cli",
 )
 

@@ -31,6 +31,9 @@ FORBIDDEN: dict[str, tuple[str, ...]] = {
     "autotune.learner": ("optuna", "ray"),
     "dashboards": ("ray", "torch"),
 }
+# dashboards (the crowd, the reports) sits above the search: no autotune module but the console script imports it
+ABOVE_AUTOTUNE = "dashboards"
+ABOVE_AUTOTUNE_EXEMPT = ("autotune.cli",)
 
 
 def _module_name(path: Path) -> str:
@@ -83,6 +86,9 @@ def _violations(path: Path) -> list[str]:
                 for b in banned:
                     if target == b or target.startswith(b + "."):
                         problems.append(f"{where}: {module} must not import {target}")
+        above = target == ABOVE_AUTOTUNE or target.startswith(ABOVE_AUTOTUNE + ".")
+        if above and (module == "autotune" or module.startswith("autotune.")) and module not in ABOVE_AUTOTUNE_EXEMPT:
+            problems.append(f"{where}: {module} must not import {target} (dashboards sits above autotune)")
         if target_layer is not None or target.split(".")[0] in ("sim", "autotune", "dashboards"):
             target_package = target.rpartition(".")[0] if "." in target else target
             if target_package != package and target != package:
@@ -98,7 +104,7 @@ def test_module_imports_follow_the_layers(path: Path) -> None:
 
 
 def test_the_checker_catches_violations(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A lower layer importing a higher one, a private name across packages, a forbidden library."""
+    """A lower layer importing a higher one, a private name across packages, a forbidden library, dashboards."""
     bad = tmp_path / "autotune" / "learner" / "bad.py"
     bad.parent.mkdir(parents=True)
     bad.write_text(
@@ -113,3 +119,12 @@ def test_the_checker_catches_violations(tmp_path: Path, monkeypatch: pytest.Monk
     assert "must not import ray" in problems[0] and "higher layer autotune.search.driver" in problems[1]
     assert "sim.protocols._resolve, private to another package" in problems[2]
     assert _violations(fine) == []
+    search = tmp_path / "autotune" / "search" / "uses_reports.py"
+    search.parent.mkdir(parents=True)
+    search.write_text("def f():\n    from dashboards import crowd\n")
+    cli = tmp_path / "autotune" / "cli.py"
+    cli.write_text("SUBCOMMANDS = ()\nimport dashboards.crowd_cli\n")
+    assert [p.split(": ", 1)[1] for p in _violations(search)] == [
+        "autotune.search.uses_reports must not import dashboards (dashboards sits above autotune)"
+    ]
+    assert _violations(cli) == []

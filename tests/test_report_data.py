@@ -11,9 +11,9 @@ import optuna
 import pytest
 
 from autotune.learner.config import TrainConfig
-from autotune.search.crowd_cli import FilterError, compile_filter, enqueue_replay
 from dashboards import crowd, extract, insights, report
 from dashboards import crowd_data as cd
+from dashboards.crowd_cli import FilterError, compile_filter, enqueue_replay
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 COMPLETE, PRUNED, FAIL = (

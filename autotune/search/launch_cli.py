@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _error(str(exc).splitlines()[0])
 
-    bar = None if args.quiet else _Bar(spec.study.name, spec.study.n_trials)
+    bar = None if args.quiet else _Bar(spec.study.name, spec.study.n_trials, spec.study.timeout_s)
     driver.progress = bar.update if bar else None
     try:
         counts: StudyCounts = driver.run()
@@ -123,18 +123,43 @@ def _short(v: Any) -> str:
 
 
 class _Bar:
-    """tqdm on stderr: finished trials of n_trials, with pruned / failed / best in the postfix."""
+    """tqdm on stderr: finished trials of n_trials, pruned / failed / best, elapsed and ETA.
 
-    def __init__(self, name: str, total: int | None) -> None:
+    The ETA is the sooner of the two budgets: the trials left at the rate so far, and the time left
+    of ``timeout_s`` (counted from the launch, as the driver counts it).
+    """
+
+    def __init__(self, name: str, total: int | None, timeout_s: float | None) -> None:
+        import time
+
         from tqdm import tqdm
 
-        self.bar = tqdm(total=total, desc=name, unit="trial", file=sys.stderr, dynamic_ncols=True)
+        self._t0 = time.monotonic()
+        self._timeout = timeout_s
+        self._total = total
+        fmt = "{desc}: {n_fmt}/{total_fmt} trials |{bar}| [{elapsed}{postfix}]" if total else None
+        self.bar = tqdm(total=total, desc=name, unit="trial", file=sys.stderr, dynamic_ncols=True, bar_format=fmt)
+
+    def _eta(self, finished: int) -> str:
+        import time
+
+        elapsed = time.monotonic() - self._t0
+        left: list[float] = []
+        if self._total and finished > 0:
+            left.append(elapsed / finished * max(0, self._total - finished))
+        if self._timeout is not None:
+            left.append(max(0.0, self._timeout - elapsed))
+        if not left:
+            return "?"
+        m, sec = divmod(int(min(left)), 60)
+        return f"{m:02d}:{sec:02d}"
 
     def update(self, c: Any) -> None:
         best = "–" if c.best_value is None else f"{c.best_value:.2f}"
         self.bar.n = max(0, c.finished)
         self.bar.set_postfix_str(
-            f"done {c.complete} pruned {c.pruned} failed {c.failed} running {c.running} best {best} mph",
+            f"ETA {self._eta(c.finished)}, done {c.complete} pruned {c.pruned} failed {c.failed} "
+            f"running {c.running} best {best} mph",
             refresh=False,
         )
         self.bar.refresh()

@@ -231,3 +231,113 @@ def test_fast_paths_hold_to_the_replicas_decision_rules():
             for n in (0, 1, 2, 7, 64, 333):
                 a, b = np.array([state], dtype=np.int64), np.array([state], dtype=np.int64)
                 assert fast_skip(a, 0, cache, n) == replica_skip(b, 0, cache, n) and a[0] == b[0], (state, cache, n)
+
+
+def _replica_decisions(config, seed: int, states: np.ndarray):
+    """The replica's ``_learn`` per decision with learning off (memory below the threshold, never full):
+    (action, net input or None during warm-up, ε, Math.random state after) per decision, and its net."""
+    import autotune.learner.js_learner as js
+    from autotune.convnet.spec import ConvNet, fc_bias_prefs
+
+    lay, n_params = js._check(config)
+    mr = np.array([seed], dtype=np.int64)
+    cache = np.zeros(2)
+    P = np.zeros(n_params)
+    for li, pref in enumerate(fc_bias_prefs(config.expanded_layers)):
+        n_in, n_out, off, _act = (int(v) for v in lay[li])
+        P[off + n_in * n_out : off + n_in * n_out + n_out] = pref
+    js._init_weights(mr, cache, lay, P)
+    width = max(int(lay[:, 0].max()), int(lay[:, 1].max()))
+    D, ns, tw = config.net_inputs, config.num_states, config.temporal_window
+    n, size = max(tw, 2), config.experience_size
+    hp = np.zeros(js.N_HP, dtype=np.int64)
+    hp[js.H_TW], hp[js.H_NS], hp[js.H_D], hp[js.H_WINDOW] = tw, ns, D, n
+    hp[js.H_EXP_SIZE], hp[js.H_START], hp[js.H_BATCH] = size, config.start_learn_threshold, config.batch_size
+    hp[js.H_BURNIN], hp[js.H_TOTAL], hp[js.H_HEAD] = config.learning_steps_burnin, config.learning_steps_total, n - 1
+    hp[js.H_CACHE], hp[js.H_V2] = int(cache[0] != 0.0), int(config.ruleset == "v2")
+    hf = np.zeros(js.N_HF)
+    hf[js.F_GAMMA], hf[js.F_LR], hf[js.F_EPS_MIN], hf[js.F_EPSILON] = config.gamma, 0.0, config.epsilon_min, 1.0
+    args = (
+        hp, hf, lay, P, np.zeros(n_params), np.zeros(n_params), np.zeros((lay.shape[0] + 1, width)),
+        np.zeros(width), np.zeros(width), np.zeros((n, D)), np.zeros((n, ns)), np.zeros(n, dtype=np.int64),
+        np.full(n, math.nan), np.zeros((size, D)), np.zeros((size, D)), np.zeros(size, dtype=np.int64),
+        np.zeros(size), np.zeros(js.WINDOW_SIZE), np.zeros(js.WINDOW_SIZE), np.zeros(D),
+    )  # fmt: skip
+    start = (int(mr[0]), int(hp[js.H_CACHE]))
+    out = []
+    for t, x in enumerate(states):
+        action = js._learn(x, 0.0, mr, *args)
+        net_input = args[-1].copy() if t + 1 > tw else None
+        out.append((action, net_input, float(hf[js.F_EPSILON]), int(mr[0])))
+    assert hp[js.H_UPDATES] == 0 and hp[js.H_N_EXP] < size  # learning off: the weights stay the built ones
+    params = []
+    for li in range(lay.shape[0]):
+        n_in, n_out, off, _act = (int(v) for v in lay[li])
+        params.append((P[off : off + n_in * n_out].reshape(n_out, n_in).copy(), P[off + n_in * n_out :][:n_out].copy()))
+    return start, out, ConvNet(layers=config.expanded_layers, params=tuple(params))
+
+
+@pytest.mark.parametrize(
+    ("ruleset", "tw", "burnin", "total"), [("v1", 3, 0, 1), ("v2", 2, 0, 1), ("v1", 1, 10, 60), ("v2", 4, 5, 40)]
+)
+def test_shared_decision_rules_make_the_replicas_decisions(ruleset: str, tw: int, burnin: int, total: int) -> None:
+    """Same states, same Math.random stream → the shared rules (``autotune.convnet.deepqlearn``) give the
+    replica's net inputs (window with the one-hot × num_states), ε, actions and draws — the Python
+    rules (flat history, ``explore_action``, ``warmup_action``) and the compiled brain policy's
+    (ring buffers, ``explore_action_mr``, ``warmup_action_mr``, ``argmax_js``)."""
+    from autotune.convnet.deepqlearn import (
+        GREEDY,
+        explore_action,
+        js_argmax_rows,
+        js_epsilon,
+        shift_window,
+        warmup_action,
+    )
+    from autotune.convnet.forward import forward
+    from autotune.convnet.random import gauss_skip
+    from autotune.learner.brain_policy import BrainPolicy, brain_policy
+    from autotune.learner.config import TrainConfig
+    from sim.rng import mrand
+
+    config = TrainConfig(
+        ruleset=ruleset, lanes_side=1, patches_ahead=2, patches_behind=1, temporal_window=tw, layers="fc:6:relu",
+        experience_size=500, start_learn_threshold=400, learning_steps_burnin=burnin, learning_steps_total=total,
+        epsilon_min=0.3, epsilon_test_time=0.3,
+    )  # fmt: skip
+    states = np.random.default_rng(tw).random((120, config.num_states)) * 3.0
+    (mr0, cache0), replica, net = _replica_decisions(config, 4242, states)
+    greedy_at: set[int] = set()
+
+    # Python rules: flat history, the torch learner's and the training agents' path
+    ns = config.num_states
+    hist = np.zeros(tw * (ns + 5))
+    mr, cache = np.array([mr0], dtype=np.int64), cache0
+    draw = lambda: mrand(mr, 0)  # noqa: E731
+    for t, (x, (want, want_input, want_eps, want_mr)) in enumerate(zip(states, replica, strict=True)):
+        if t + 1 <= tw:
+            action = warmup_action(ruleset == "v2", draw)
+        else:
+            net_input = np.concatenate([x, hist])
+            np.testing.assert_array_equal(net_input, want_input, err_msg=f"decision {t + 1}: net input")
+            eps = js_epsilon(t + 1, burnin, total, config.epsilon_min)
+            assert eps == want_eps, (t + 1, eps, want_eps)
+            action = explore_action(draw, eps)
+            if action == GREEDY:
+                greedy_at.add(t)
+                cache = gauss_skip(mr, 0, cache, config.net_inputs)  # policy()'s new Vol
+                action = int(js_argmax_rows(forward(net, net_input)[None, :])[0])
+        assert (action, int(mr[0])) == (want, want_mr), f"decision {t + 1}: action/draws"
+        if tw:
+            shift_window(hist, x, action, ns)
+    assert len(greedy_at) > 10
+
+    # compiled rules: the exact brain policy (ring buffers) — its ε is ε_test, so only where the schedule is flat
+    if (burnin, total) == (0, 1):
+        policy = BrainPolicy(net, net_settings(config), ruleset)
+        policy.reset(1, np.array([cache0], dtype=np.int64))
+        mr = np.array([mr0], dtype=np.int64)
+        for t, (x, (want, want_input, _eps, want_mr)) in enumerate(zip(states, replica, strict=True)):
+            action = brain_policy(x, 0, 0, math.nan, mr, 0, policy.pstate)
+            assert (action, int(mr[0])) == (want, want_mr), f"decision {t + 1}: compiled action/draws"
+            if t in greedy_at:  # the ring buffers built the input policy() saw
+                np.testing.assert_array_equal(policy.netin, want_input, err_msg=f"decision {t + 1}: net input")

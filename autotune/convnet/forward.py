@@ -22,6 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
+from autotune.convnet.deepqlearn import js_argmax_rows
 from autotune.convnet.spec import (
     FC,
     LRN,
@@ -218,11 +219,4 @@ def forward(net: ConvNet | FlatNet, x: np.ndarray) -> np.ndarray:
 def greedy_actions(net: ConvNet | FlatNet, x: np.ndarray, num_actions: int = 5) -> np.ndarray:
     """deepqlearn's greedy action (first maximal Q among the first ``num_actions`` outputs) per row."""
     q = np.atleast_2d(forward(net, x))
-    out = np.zeros(q.shape[0], dtype=np.int64)
-    for r in range(q.shape[0]):
-        best, val = 0, q[r, 0]
-        for j in range(1, num_actions):
-            if q[r, j] > val:
-                best, val = j, q[r, j]
-        out[r] = best
-    return out
+    return js_argmax_rows(np.ascontiguousarray(q[:, :num_actions])).astype(np.int64)

@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from autotune.convnet.deepqlearn import js_argmax_rows, js_epsilon
+from autotune.convnet.deepqlearn import GREEDY, explore_action, js_argmax_rows, js_epsilon, shift_window, warmup_action
 from autotune.learner.brain import BLOCK, DeepQLearner
-from autotune.learner.config import NUM_ACTIONS, TrainConfig
+from autotune.learner.config import TrainConfig
 from autotune.learner.js_learner import OriginalStream
 from autotune.learner.kernel import numpy_forward_ops
 
@@ -57,16 +57,12 @@ class TrainingAgents:
 
     def act(self, car: int, inputs: np.ndarray) -> int:
         if self.brain.forward_passes <= self.tw:
-            return 0  # load-time copies, warm-up branch
-        rf = self._uniform()
-        if rf < self.epsilon:  # always when ε = 1
-            return int(5.0 * self._uniform())
-        return self._greedy(car, inputs)
+            return warmup_action(True, self._uniform)  # load-time copies, v2 warm-up: 0, no draw
+        action = explore_action(self._uniform, self.epsilon)  # always random when ε = 1
+        return self._greedy(car, inputs) if action == GREEDY else action
 
     def _greedy(self, car: int, inputs: np.ndarray) -> int:
         brain = self.brain
-        S = brain.num_states
-        step = S + NUM_ACTIONS
         if self.frozen is None:
             import copy
 
@@ -82,8 +78,5 @@ class TrainingAgents:
             h = op(h)
         action = int(js_argmax_rows(h[None, :])[0])
         if self.tw:
-            hist[step:] = hist[:-step].copy()
-            hist[:S] = inputs
-            hist[S:step] = 0.0
-            hist[S + action] = float(S)
+            shift_window(hist, inputs, action, brain.num_states)
         return action

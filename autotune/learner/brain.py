@@ -42,7 +42,7 @@ import math
 import numpy as np
 import torch
 
-from autotune.convnet.deepqlearn import js_epsilon
+from autotune.convnet.deepqlearn import GREEDY, explore_action, js_epsilon, shift_window, warmup_action
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
 from autotune.learner.js_learner import OriginalStream
 from autotune.learner.kernel import NP_DTYPES, TORCH_DTYPES, Kernel, build_network, numpy_forward_ops
@@ -118,7 +118,6 @@ class DeepQLearner:
         self._a2 = 0  # A_{t−2}
         self._r1 = math.nan  # latest reward (reward_window[n−1])
         self._hist = np.zeros(tw * (S + NUM_ACTIONS), dtype=np_dtype)
-        self._onehot_value = float(S)
         # counters and schedule
         self.age = 0
         self.forward_passes = 0
@@ -208,45 +207,30 @@ class DeepQLearner:
             S = self.num_states
             x[:S] = state
             if tw:
-                x[S:] = self._hist
+                x[S:] = self._hist  # [x_t, x_{t−1}, e(a_{t−1}), …]
             if self.learning:
-                num = self.age - self._burnin
-                den = self._total - self._burnin
-                if den != 0:
-                    eps = 1.0 - num / den
-                    eps = self._eps_min if eps < self._eps_min else eps
-                    self.epsilon = 1.0 if eps > 1.0 else eps
-                else:
-                    self.epsilon = js_epsilon(self.age, self._burnin, self._total, self._eps_min)
+                self.epsilon = js_epsilon(self.age, self._burnin, self._total, self._eps_min)
             else:
                 self.epsilon = self.config.epsilon_test_time
-            rf = self._uniform()  # drawn even when ε = 0
-            if rf < self.epsilon:
-                action = int(5.0 * self._uniform())
-            else:
+            action = explore_action(self._uniform, self.epsilon)  # rf drawn even when ε = 0
+            if action == GREEDY:
                 if self._stream is not None:
                     self._stream.vol(self.config.net_inputs)  # policy() allocates a random Vol first
                 h = x
                 for op in self._np_ops:
                     h = op(h)
-                action = int(h.argmax())
+                action = int(h.argmax())  # = the strict-> scan while every Q is finite (checked next)
                 if not math.isfinite(h[action]):
                     self.last_q = h.copy()
                     raise DivergedError(f"Q-values became non-finite {h.tolist()} at decision {fp}")
         else:
             # warm-up: no input (net_window gets [], never stored); v2 returns ⌊nextFloat()⌋·5 = 0
-            action = 0 if self.v2 else int(5.0 * self._uniform())
+            action = warmup_action(self.v2, self._uniform)
         self._cur = nxt
         self._a2 = self._a1
         self._a1 = action
         if tw:
-            S = self.num_states
-            step = S + NUM_ACTIONS
-            hist = self._hist
-            hist[step:] = hist[:-step].copy()
-            hist[:S] = state
-            hist[S:step] = 0.0
-            hist[S + action] = self._onehot_value
+            shift_window(self._hist, state, action, self.num_states)
         return action
 
     # -- evaluation helpers ------------------------------------------------------------------------

@@ -52,7 +52,14 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from autotune.convnet.deepqlearn import argmax_js
+from autotune.convnet.deepqlearn import (
+    GREEDY,
+    argmax_js,
+    explore_action_mr,
+    warmup_action_mr,
+    window_input,
+    window_push,
+)
 from autotune.convnet.forward import FlatNet, flatten, forward_flat
 from autotune.convnet.netjson import NetSettings, validate
 from autotune.convnet.random import build_draws, gauss_skip
@@ -60,7 +67,7 @@ from autotune.convnet.spec import NUM_ACTIONS, ConvNet
 from sim import engine
 from sim.config import ConfigError, EngineConfig
 from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, evaluate
-from sim.rng import mrand, mulberry32_advance
+from sim.rng import mulberry32_advance
 from sim.simulator import Simulator
 
 MAX_BRAINS = 11  # the ego + up to 10 agents
@@ -88,39 +95,19 @@ RULESET_V2 = 2
 def _decide(inputs, mr, w, b, codes, params, gcfg, gflt, wstate, bstate, states, actions, netin, buf):  # noqa: ANN001, ANN202
     tw = gcfg[G_TW]
     ns = gcfg[G_NUM_STATES]
-    window = gcfg[G_WINDOW]
     fp = bstate[w, b, B_FP] + 1
     bstate[w, b, B_FP] = fp
     head = bstate[w, b, B_HEAD]
     if fp > tw:
-        rf = mrand(mr, w)
-        if rf < gflt[F_EPSILON]:
-            action = int(math.floor(mrand(mr, w) * 5.0))
-        else:
+        action = explore_action_mr(mr, w, gflt[F_EPSILON])
+        if action == GREEDY:
             wstate[w, W_CACHE] = gauss_skip(mr, w, wstate[w, W_CACHE], gcfg[G_NET_INPUTS])
-            for d in range(ns):
-                netin[d] = inputs[d]
-            pos = ns
-            for k in range(tw):
-                idx = (head - k) % window
-                for d in range(ns):
-                    netin[pos + d] = states[w, b, idx, d]
-                pos += ns
-                a = actions[w, b, idx]
-                for q in range(NUM_ACTIONS):
-                    netin[pos + q] = float(ns) if q == a else 0.0
-                pos += NUM_ACTIONS
+            window_input(netin, inputs, states[w, b], actions[w, b], head, tw, ns)
             out = forward_flat(codes, params, netin, buf)
             action = argmax_js(buf, out, NUM_ACTIONS)
-    elif gcfg[G_RULESET] == RULESET_V1:
-        action = int(math.floor(mrand(mr, w) * 5.0))
     else:
-        action = 0
-    head = (head + 1) % window
-    bstate[w, b, B_HEAD] = head
-    for d in range(ns):
-        states[w, b, head, d] = inputs[d]
-    actions[w, b, head] = action
+        action = warmup_action_mr(mr, w, gcfg[G_RULESET] == RULESET_V2)
+    bstate[w, b, B_HEAD] = window_push(states[w, b], actions[w, b], head, inputs, action, ns)
     return action
 
 

@@ -8,7 +8,7 @@ import numba
 import numpy as np
 import torch
 
-from autotune.convnet.deepqlearn import js_argmax_rows
+from autotune.convnet.deepqlearn import explore_rows, js_argmax_rows, shift_windows, warmup_rows
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
 from sim.protocols import EvalResult, evaluate
 
@@ -66,22 +66,11 @@ class GreedyPolicy:
         with torch.inference_mode():
             q = self.module(torch.from_numpy(np.ascontiguousarray(x)).to(self.dtype)).double().numpy()
         actions = js_argmax_rows(q)
-        eps = self.config.epsilon_test_time
-        if eps > 0:
-            explore = self.rng.random(n) < eps
-            actions[explore] = (5.0 * self.rng.random(int(explore.sum()))).astype(np.int64)
-        warm = fp <= tw
-        if warm.any():
-            actions[warm] = (
-                0 if self.config.ruleset == "v2" else (5.0 * self.rng.random(int(warm.sum()))).astype(np.int64)
-            )
+        explore_rows(actions, self.config.epsilon_test_time, self.rng)
+        warmup_rows(actions, fp <= tw, self.config.ruleset == "v2", self.rng)
         if tw:
-            step = S + NUM_ACTIONS
             h = self._hist[slots]
-            h[:, step:] = h[:, :-step]
-            h[:, :S] = obs.inputs
-            h[:, S:step] = 0.0
-            h[np.arange(n), S + actions] = float(S)
+            shift_windows(h, obs.inputs, actions, S)
             self._hist[slots] = h
         return actions
 

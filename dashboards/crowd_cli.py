@@ -2,14 +2,19 @@
 
     autotune crowd import [--storage URL] [--study crowd] [--own-nets]
     autotune crowd replay [--filter EXPR] [--limit N] [--seeds K] [--workers N] [--storage URL] [--study crowd-replay]
+                          [--enqueue-only]
     autotune compare STUDY [--crowd STUDY] [--replay STUDY] [--storage URL] --out report.html [--no-dashboard]
 
 ``import`` writes the packaged crowd (``dashboards.crowd_data``) as an Optuna study, one COMPLETE
 trial per scored submission (idempotent); ``--own-nets`` first scores the 25 human nets with their
 own weights in their own engine and official protocol (exact evaluator) and stores the scores.
 ``replay`` enqueues the selected crowd settings, K seeds each, as trials of the replay study
-(params under the search's names, the submission's full config in ``crowd_config``); the search
-driver runs them. ``--filter`` is a small expression over the CSV columns, e.g.
+(params under the search's names, the submission's full config in the ``config`` user attr, a seed
+fixed by (crowd id, seed index)) and runs them with the search driver on ``--workers`` Ray
+workers: the whole training (the submission's own trainIterations, never fewer) and the official
+protocol of the submission's engine, no pruning. Then it prints self-reported against replayed
+(mean over seeds). Rerunning enqueues only missing (setting, seed) pairs and runs only waiting
+trials. ``--filter`` is a small expression over the CSV columns, e.g.
 ``engine_version == 'v2' and reported_score_mph > 70`` (parsed with ``ast``, never ``eval``).
 ``compare`` writes the self-contained HTML report and attaches its figures to the study in
 optuna-dashboard. Bad input: one line on stderr, exit status 2.
@@ -19,16 +24,26 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import operator
 import sys
-from collections.abc import Callable
-from typing import Any
+import time
+from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
 from sim.config import ConfigError
 
+if TYPE_CHECKING:
+    from autotune.search.spec import StudySpec
+
 EXIT_USAGE = 2
 
-__all__ = ["FilterError", "compile_filter", "add_parser", "run", "score_own_nets", "enqueue_replay"]
+__all__ = [
+    "FilterError", "compile_filter", "add_parser", "run", "score_own_nets", "enqueue_replay", "replay_seed",
+    "replay_spec", "replay_table",
+]  # fmt: skip
+
+REPLAY_TRIAL_TIMEOUT_S = 24 * 3600.0  # a crowd setting trains as long as it says (up to 1,000,000 iterations)
 
 
 class FilterError(ConfigError):
@@ -171,8 +186,19 @@ def score_own_nets(progress: Callable[[str], None] | None = None) -> dict[str, d
     return out
 
 
+def replay_seed(crowd_id: str, seed_index: int) -> int:
+    """The training seed of seed index k of a crowd setting: the same in every replay study."""
+    import zlib
+
+    import numpy as np
+
+    state = np.random.SeedSequence([zlib.crc32(crowd_id.encode()), int(seed_index)]).generate_state(1, np.uint32)
+    return int(state[0] >> 1)
+
+
 def enqueue_replay(study: Any, subs: list[Any], seeds: int) -> tuple[int, int, dict[str, str]]:
     """Enqueue ``seeds`` trials per submission (skipping pairs already in the study); (added, present, skipped)."""
+    from autotune.search.driver import CONFIG_ATTR
     from dashboards import crowd, crowd_data
 
     present = {
@@ -198,11 +224,119 @@ def enqueue_replay(study: Any, subs: list[Any], seeds: int) -> tuple[int, int, d
                 "crowd_id": sub.id,
                 "seed_index": k,
                 "reported_score_mph": sub.reported_score_mph,
-                "crowd_config": config.to_mapping(),
+                "engine_version": sub.engine_version,
+                CONFIG_ATTR: config.to_mapping(),  # the driver trains this (settings params cannot carry included)
+                "seed": replay_seed(sub.id, k),
             }
             study.enqueue_trial(params, user_attrs=attrs, skip_if_exists=False)
             added += 1
     return added, existing, skipped
+
+
+def replay_spec(
+    name: str, *, storage: str, workers: int, n_trials: int, params: Iterable[dict[str, Any]] = ()
+) -> StudySpec:
+    """The replay study's spec: the paper's space (``space.DEFAULT_SPACE``, = paper.toml), no pruner, a long limit.
+
+    Random sampler (only a v1 trial's unused ``other_agents`` is ever drawn), no pruning (a replay
+    trains to the end), ``report_points`` 5 for the learning curve. The space is widened to hold
+    every enqueued value in ``params`` (the crowd went beyond the paper's bounds: 50 lanes, 1-neuron
+    layers, linear and svm outputs), so Optuna stores them without complaint; activation choices
+    are the same in every replay (a categorical's choices may not change within a study).
+    """
+    import dataclasses
+
+    from autotune.search.space import DEFAULT_SPACE
+    from autotune.search.spec import parse_spec
+    from dashboards.crowd import ACTIVATION_CHOICES
+
+    spec = parse_spec(
+        {
+            "study": {
+                "name": name, "sampler": "random", "pruner": "none", "n_trials": n_trials, "seed": 0,
+                "storage": storage, "trial_timeout_s": REPLAY_TRIAL_TIMEOUT_S,
+            },
+            "space": DEFAULT_SPACE,
+            "evaluation": {"report_points": 5, "quick_runs": 10, "quick_frames": 2000, "n_warmup_steps": 0},
+            "resources": {"workers": workers},
+        },
+        source="crowd replay",
+    )  # fmt: skip
+    seen: dict[str, list[Any]] = {}
+    for p in params:
+        for key, value in p.items():
+            seen.setdefault(key.rsplit("_", 1)[0] if key.startswith(("neurons_", "activation_")) else key, []).append(
+                value
+            )
+    dims = []
+    for d in spec.space:
+        if d.kind == "categorical":
+            d = dataclasses.replace(d, choices=(*d.choices, *(c for c in ACTIVATION_CHOICES if c not in d.choices)))
+        elif seen.get(d.name):
+            assert d.low is not None and d.high is not None
+            low, high = min(d.low, *seen[d.name]), max(d.high, *seen[d.name])
+            if d.log and low <= 0:  # cannot widen a log scale to 0: Optuna stores the value with a warning
+                low = d.low
+            d = dataclasses.replace(d, low=low, high=high)
+        dims.append(d)
+    return dataclasses.replace(spec, space=tuple(dims))
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayRow:
+    """One replayed crowd setting: its self-reported score beside our seeds' official scores."""
+
+    crowd_id: str
+    engine: str
+    """Engine of the submission ('v1' or 'v2'); its official protocol scored the replay."""
+    reported: float | None
+    """Self-reported score [mph] (None: the submission reported none)."""
+    scores: tuple[float, ...]
+    """Official score of each complete seed [mph]."""
+    unfinished: int
+    """Seeds of this setting not complete (waiting, running, failed or pruned)."""
+
+    @property
+    def mean(self) -> float | None:
+        """Mean over the complete seeds [mph]."""
+        return sum(self.scores) / len(self.scores) if self.scores else None
+
+
+def replay_table(study: Any, subs: Sequence[Any]) -> list[ReplayRow]:
+    """Per submission of ``subs`` (in that order): the complete replay scores in ``study``."""
+    from optuna.trial import TrialState
+
+    rows = []
+    trials = study.get_trials(deepcopy=False)
+    for sub in subs:
+        mine = [t for t in trials if t.user_attrs.get("crowd_id") == sub.id]
+        if not mine:
+            continue
+        latest = {}  # seed index -> its last attempt (a retry supersedes the failure it retries)
+        for t in mine:
+            latest[t.user_attrs.get("seed_index")] = t
+        done = tuple(float(t.value) for t in latest.values() if t.state == TrialState.COMPLETE)
+        rows.append(ReplayRow(sub.id, sub.engine_version, sub.reported_score_mph, done, len(latest) - len(done)))
+    return rows
+
+
+def format_replay_table(rows: Sequence[ReplayRow]) -> str:
+    """The rows as an aligned text table (crowd id, engine, self-reported, replayed mean ± sd over seeds)."""
+
+    def num(x: float | None) -> str:
+        return "—" if x is None else f"{x:.2f}"
+
+    head = ("crowd id", "engine", "self-reported", "replayed mean", "sd", "seeds")
+    body = []
+    for r in rows:
+        sd = None
+        if len(r.scores) > 1:
+            m = r.mean or 0.0
+            sd = (sum((x - m) ** 2 for x in r.scores) / (len(r.scores) - 1)) ** 0.5
+        seeds = f"{len(r.scores)}" + (f" (+{r.unfinished} not complete)" if r.unfinished else "")
+        body.append((r.crowd_id, r.engine, num(r.reported), num(r.mean), num(sd), seeds))
+    widths = [max(len(row[i]) for row in (head, *body)) for i in range(len(head))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in (head, *body))
 
 
 def add_parser(subparsers: Any) -> None:
@@ -221,13 +355,18 @@ def add_parser(subparsers: Any) -> None:
         "--own-nets", action="store_true", help="also score the 25 human nets with their own weights (exact engine)"
     )
     imp.set_defaults(func=run, command_name="crowd-import")
-    rep = actions.add_parser("replay", help="enqueue crowd settings (K seeds each) as trials of a replay study")
+    rep = actions.add_parser(
+        "replay", help="retrain and score crowd settings (K seeds each) with our learner and the exact engine"
+    )
     rep.add_argument("--filter", default="", help="expression over CSV columns, e.g. \"engine_version == 'v2'\"")
     rep.add_argument("--limit", type=int, default=0, help="replay at most N submissions (0: all selected)")
     rep.add_argument("--seeds", type=int, default=1, help="training seeds per setting (default 1)")
-    rep.add_argument("--workers", type=int, default=1, help="parallel trials when the driver runs them")
+    rep.add_argument("--workers", type=int, default=1, help="Ray workers = trials trained in parallel (default 1)")
     rep.add_argument("--storage", default="", help="journal file or SQLAlchemy URL (default: runs/<study>/journal.log)")
     rep.add_argument("--study", default="crowd-replay", help="study name (default: crowd-replay)")
+    rep.add_argument(
+        "--enqueue-only", action="store_true", help="only enqueue; a later replay of the same study runs them"
+    )
     rep.set_defaults(func=run, command_name="crowd-replay")
 
     cmp = subparsers.add_parser(
@@ -271,7 +410,7 @@ def _replay(args: argparse.Namespace) -> int:
     import optuna
 
     from autotune.search.storage import open_storage
-    from dashboards import crowd_data
+    from dashboards import crowd, crowd_data
 
     if args.seeds < 1 or args.limit < 0 or args.workers < 1:
         raise ConfigError("--seeds and --workers must be ≥ 1 and --limit ≥ 0")
@@ -282,6 +421,7 @@ def _replay(args: argparse.Namespace) -> int:
     if args.limit:
         subs = subs[: args.limit]
     storages = open_storage(args.storage, args.study)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = optuna.create_study(
         study_name=args.study, storage=storages.storage, direction="maximize", load_if_exists=True
     )
@@ -293,10 +433,66 @@ def _replay(args: argparse.Namespace) -> int:
     )
     for sid, reason in skipped.items():
         print(f"  skipped {reason}" if reason.startswith(sid) else f"  skipped {sid}: {reason}")
-    study.set_user_attr("replay_workers", args.workers)
-    # TODO(issue 8 driver): run the enqueued trials here once autotune/search/driver.py exposes its entry point
-    print("the enqueued trials wait in the study; the search driver runs them")
+    if args.enqueue_only:
+        print(f"the enqueued trials wait in the study; 'autotune crowd replay --study {args.study}' runs them")
+        return 0
+    from autotune import TrainConfig
+    from autotune.search.driver import CONFIG_ATTR, Driver
+
+    trials = study.get_trials(deepcopy=False)
+    if not trials:
+        print("nothing to run: the study has no trial")
+        return 0
+    waiting = sum(1 for t in trials if t.state == optuna.trial.TrialState.WAITING)
+    spec = replay_spec(
+        args.study, storage=args.storage, workers=args.workers,
+        n_trials=sum(1 for t in trials if "retry_of" not in t.user_attrs),  # exactly the enqueued ones
+        params=[crowd.encode_params(TrainConfig.from_mapping(t.user_attrs[CONFIG_ATTR]))
+                for t in trials if CONFIG_ATTR in t.user_attrs],
+    )  # fmt: skip
+    if waiting:
+        print(f"training {waiting} trial(s) on {args.workers} worker(s): full training, official protocol")
+    driver = Driver(spec, storages, progress=_ReplayProgress(waiting))
+    try:
+        counts = driver.run()  # starts no Ray when nothing waits (a rerun)
+    except KeyboardInterrupt:
+        print("interrupted: running trials failed (retryable); rerun the same command to go on", file=sys.stderr)
+        return 130
+    ran = counts.complete + counts.pruned + counts.failed - sum(1 for t in trials if t.state.is_finished())
+    if ran:
+        print(
+            f"ran {ran} trial(s) in {counts.elapsed_s:.0f} s; study: {counts.complete} complete, {counts.pruned} "
+            f"pruned, {counts.failed} failed ({counts.retries} retries)"
+        )
+    else:
+        print("nothing to run: every trial of the study has run already")
+    rows = replay_table(study, subs)
+    if rows:
+        print(format_replay_table(rows))
     return 0
+
+
+class _ReplayProgress:
+    """One stderr line whenever a replay trial finishes."""
+
+    def __init__(self, total: int) -> None:
+        self.total = total
+        self.base: int | None = None
+        self.seen = 0
+        self.t0 = time.perf_counter()
+
+    def __call__(self, c: Any) -> None:
+        finished = c.complete + c.pruned + c.failed
+        if self.base is None:
+            self.base = finished
+        done = finished - self.base
+        if done != self.seen:
+            self.seen = done
+            print(
+                f"  replay: {done} finished of {self.total} ({c.complete} complete, {c.failed} failed), "
+                f"{c.running} running, {time.perf_counter() - self.t0:.0f} s",
+                file=sys.stderr,
+            )
 
 
 def _compare(args: argparse.Namespace) -> int:

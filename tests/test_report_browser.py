@@ -21,7 +21,8 @@ def test_compare_report_renders_in_chromium(tmp_path: Path, capsys) -> None:  # 
     storage = f"sqlite:///{tmp_path / 'studies.db'}"
     contract_study(storage, name="auto", n=12, states={4: PRUNED})
     assert main(["crowd", "import", "--storage", storage], owns_process=False) == 0
-    assert main(["crowd", "replay", "--storage", storage, "--filter", "in_nets_dir", "--limit", "2"]) == 0
+    enqueue = ["crowd", "replay", "--storage", storage, "--filter", "in_nets_dir", "--limit", "2", "--enqueue-only"]
+    assert main(enqueue) == 0
     replay = optuna.load_study(study_name="crowd-replay", storage=storage)
     for value in (70.0, 71.5):  # the driver would train and score these; here they finish with a given score
         trial = replay.ask()

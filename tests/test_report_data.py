@@ -245,7 +245,7 @@ def test_replay_and_own_net_comparisons(crowd_study: optuna.Study) -> None:
     assert enqueue_replay(replay, subs, seeds=2)[:2] == (0, 4)  # idempotent
     for trial, value in zip(replay.get_trials(), (70.0, 72.0, 60.0, 61.0), strict=True):
         assert trial.state == optuna.trial.TrialState.WAITING
-        fixed = crowd.encode_params(TrainConfig.from_mapping(trial.user_attrs["crowd_config"]))
+        fixed = crowd.encode_params(TrainConfig.from_mapping(trial.user_attrs["config"]))
         assert trial.system_attrs["fixed_params"] == fixed
         t = replay.ask()
         assert t.user_attrs["crowd_id"] == trial.user_attrs["crowd_id"]

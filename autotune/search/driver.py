@@ -17,6 +17,13 @@ time) as a system attr and the driver writes heartbeats for its RUNNING trials (
 heartbeat-enabled RDB storage, a ``autotune:heartbeat`` system attr otherwise). A new driver fails
 the RUNNING trials whose driver is dead (same host: by pid; another host: heartbeat older than
 the grace period) and retries them; nothing a dead driver finished is touched.
+
+Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
+(``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express
+(trainer method, l1 decay, …) included — and is scored with the official protocol of that
+config's ruleset (v2-official / v1-original), so one study can mix engines. Its params still go
+through ``space.sample`` (the enqueued values, for the dashboard). A retry carries the user attrs
+its trial was enqueued with.
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ import optuna
 from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
+from autotune import TrainConfig
 from autotune.search import space
 from autotune.search.objective import (
     COMPLETE,
@@ -52,10 +60,14 @@ from autotune.search.spec import StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
 from sim.config import ConfigError
 
-__all__ = ["Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "OWNER_ATTR"]
+__all__ = [
+    "Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "OWNER_ATTR", "CONFIG_ATTR",
+]  # fmt: skip
 
 OWNER_ATTR = "autotune:driver"  # system attr: {"host", "pid", "start"} of the driver running the trial
 BEAT_ATTR = "autotune:heartbeat"  # system attr: time.time() of the driver's latest heartbeat for the trial
+CONFIG_ATTR = "config"  # user attr an enqueued trial may carry: the full TrainConfig mapping it trains
+ENQUEUED_ATTR = "autotune:enqueued"  # system attr: the user attr keys a trial was enqueued with (kept by retries)
 
 
 @dataclasses.dataclass
@@ -257,7 +269,8 @@ class Driver:
             if depth >= self.spec.study.max_retries:
                 continue
             seed = t.user_attrs.get("seed", trial_seed(self.spec.study.seed, cur.number))
-            self.study.enqueue_trial(t.params, user_attrs={"retry_of": t.number, "seed": seed})
+            given = {k: t.user_attrs[k] for k in t.system_attrs.get(ENQUEUED_ATTR, ()) if k in t.user_attrs}
+            self.study.enqueue_trial(t.params, user_attrs={**given, "retry_of": t.number, "seed": seed})
 
     @staticmethod
     def _retryable(t: FrozenTrial) -> bool:
@@ -375,15 +388,19 @@ class Driver:
                 return False
         trial = self.study.ask()
         storage = self.storages.storage
+        given = sorted(k for k in trial.user_attrs if k != "retry_of")  # what it was enqueued with
+        if given:
+            storage.set_trial_system_attr(trial._trial_id, ENQUEUED_ATTR, given)
         storage.set_trial_system_attr(trial._trial_id, OWNER_ATTR, self.owner)
         self._beat(trial)
         seed = trial.user_attrs.get("seed")
         if seed is None:
             seed = trial_seed(self.spec.study.seed, trial.number)
             trial.set_user_attr("seed", seed)
+        full = trial.user_attrs.get(CONFIG_ATTR)  # an enqueued full config (crowd replay) wins over the params
         try:
             params = space.sample(trial, self.spec)
-            config = space.to_config(self.spec, params)
+            config = TrainConfig.from_mapping(full) if full is not None else space.to_config(self.spec, params)
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study
             trial.set_user_attr("cause", f"invalid configuration: {exc}")
             self.study.tell(trial, state=TrialState.FAIL)
@@ -392,7 +409,8 @@ class Driver:
         e = self.spec.evaluation
         task = TrialTask(
             number=trial.number, config=config.to_mapping(), seed=int(seed), report_points=e.report_points,
-            quick_runs=e.quick_runs, quick_frames=e.quick_frames, final_protocol=e.final_protocol,
+            quick_runs=e.quick_runs, quick_frames=e.quick_frames,
+            final_protocol="" if full is not None else e.final_protocol,  # '': the config's ruleset's official
             timeout_s=self.spec.study.trial_timeout_s,
         )  # fmt: skip
         trial.set_user_attr("worker", self.pool.worker_of(slot))

@@ -1,0 +1,137 @@
+"""``autotune crowd replay``: crowd settings retrained by the search driver and scored by the exact engine.
+
+End to end through the real CLI (a subprocess: real Ray, real journal file) on two small crowd
+settings — one v2, one v1 — trained for their full ``trainIterations`` (an honest replay; the
+filter picks short ones instead). Then the driver's enqueued-full-config path without Ray: the
+task it hands a worker, and a retry that keeps what the trial was enqueued with.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import optuna
+import pytest
+
+from autotune.learner.config import TrainConfig
+from autotune.search.driver import CONFIG_ATTR, Driver
+from autotune.search.storage import load_study, open_storage
+from dashboards import crowd, crowd_data
+from dashboards.crowd_cli import enqueue_replay, replay_seed, replay_spec
+from tests.test_search_launch import check_finished_trials, tagged_processes, wait_until
+
+# short crowd settings (≤ 2,300 weights): 5,000 iterations (one v2 row), or v1 ones above 70.5 mph (10,000 iterations)
+SMALL = "n_params <= 2300 and (trainIterations == 5000 or reported_score_mph > 70.5 and trainIterations <= 10000)"
+PICKED = ("dt-lupuleasa-core-deeptraffic-v11", "dt-rahulpawar1489-deeptraffic-v07")  # the first 2 of 4, CSV order
+
+
+def replay(cwd: Path, *args: str, tag: str) -> tuple[int, str, str]:
+    """``autotune crowd replay ARGS`` in ``cwd``; ``tag`` marks every process it starts."""
+    env = {**os.environ, "AUTOTUNE_TEST_TAG": tag, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "autotune.cli", "crowd", "replay", *args],
+        cwd=cwd, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def test_replay_trains_crowd_settings_and_a_rerun_runs_nothing(tmp_path: Path) -> None:
+    tag = uuid.uuid4().hex
+    storage = str(tmp_path / "replay.log")
+    args = ("--storage", storage, "--filter", SMALL, "--limit", "2", "--workers", "1")
+    t0 = time.perf_counter()
+    rc, out, err = replay(tmp_path, *args, tag=tag)
+    first_s = time.perf_counter() - t0
+    assert rc == 0, err
+    assert "2 crowd setting(s) selected; 2 trial(s) enqueued" in out and "ran 2 trial(s)" in out, out
+    study = load_study(open_storage(storage, "crowd-replay", heartbeat=False), "crowd-replay")
+    check_finished_trials(study)
+    subs = {s.id: s for s in crowd_data.load_submissions() if s.id in PICKED}
+    assert [t.user_attrs["crowd_id"] for t in study.trials] == list(PICKED)
+    for t in study.trials:
+        sub = subs[t.user_attrs["crowd_id"]]
+        config = crowd_data.train_config(sub)
+        assert t.state == optuna.trial.TrialState.COMPLETE and t.value is not None and 30 < t.value < 90
+        assert t.user_attrs["seed"] == replay_seed(sub.id, 0) and t.user_attrs["seed_index"] == 0
+        assert t.user_attrs["config"] == config.to_mapping()  # the submission's own settings, all of them
+        assert t.user_attrs["official_protocol"] == {"v2": "v2-official", "v1": "v1-original"}[sub.engine_version]
+        # full training: training frames (30 per iteration) + 5 quick scores of 10 × 2,000 + the official runs
+        assert t.user_attrs["frames_simulated"] >= 30 * config.train_iterations + 1_000_000
+        assert len(t.intermediate_values) == 5
+        expected = crowd.encode_params(config)
+        assert {k: t.params[k] for k in expected} == pytest.approx(expected)
+    table = out[out.index("crowd id") :].splitlines()
+    assert table[0].split() == ["crowd", "id", "engine", "self-reported", "replayed", "mean", "sd", "seeds"]
+    for line, t in zip(table[1:], study.trials, strict=True):
+        sub = subs[t.user_attrs["crowd_id"]]
+        assert line.split() == [sub.id, sub.engine_version, f"{sub.reported_score_mph:.2f}", f"{t.value:.2f}", "—", "1"]
+    print(f"\nreplay of 2 settings on 1 worker: {first_s:.1f} s\n{chr(10).join(table)}")
+
+    t0 = time.perf_counter()
+    rc, out, err = replay(tmp_path, *args, tag=tag)
+    assert rc == 0, err
+    assert "0 trial(s) enqueued, 2 already there" in out and "nothing to run" in out, out
+    assert time.perf_counter() - t0 < 20  # no Ray, no training
+    again = load_study(open_storage(storage, "crowd-replay", heartbeat=False), "crowd-replay")
+    assert [(t.state, t.value, t.datetime_complete) for t in again.trials] == [
+        (t.state, t.value, t.datetime_complete) for t in study.trials
+    ]
+    rc, out, err = replay(tmp_path, *args, "--seeds", "2", "--enqueue-only", tag=tag)
+    assert rc == 0 and "2 trial(s) enqueued, 2 already there" in out and "ran " not in out, (out, err)
+    waiting = load_study(open_storage(storage, "crowd-replay"), "crowd-replay").trials[2:]
+    assert [(t.state, t.user_attrs["seed_index"]) for t in waiting] == [(optuna.trial.TrialState.WAITING, 1)] * 2
+    wait_until(lambda: not tagged_processes(tag), 30, "the replay's Ray processes to end")
+
+
+class _FakePool:
+    """The two calls of ``WorkerPool`` that ``Driver._launch_next`` makes, recording the tasks."""
+
+    def __init__(self) -> None:
+        self.tasks: list[Any] = []
+
+    def worker_of(self, slot: int) -> str:
+        return f"test:{slot}"
+
+    def node_of(self, slot: int) -> str:
+        return "node"
+
+    def submit(self, slot: int, task: Any) -> None:
+        self.tasks.append(task)
+
+
+def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: Path) -> None:
+    by_id = {s.id: s for s in crowd_data.load_submissions()}
+    v1 = by_id["dt-rahulpawar1489-deeptraffic-v05"]  # sgd, l1 0, its own start_learn_threshold: not all params
+    odd = by_id["dt-blackvitriol-rl-v00"]  # fc:1:softmax → neurons_0 = 1, activation_0 'linear': beyond paper.toml
+    configs = {sub.id: crowd_data.train_config(sub) for sub in (v1, odd)}
+    storages = open_storage(str(tmp_path / "j.log"), "r")
+    spec = replay_spec(
+        "r", storage="", workers=1, n_trials=2, params=[crowd.encode_params(c) for c in configs.values()]
+    )
+    assert spec.study.pruner == "none" and spec.evaluation.final_protocol == "v2-official"  # the space's ruleset
+    assert spec.dimensions["neurons"].low == 1 and "linear" in spec.dimensions["activation"].choices
+    driver = Driver(spec, storages)
+    study = driver.open_study()
+    assert enqueue_replay(study, [v1, odd], seeds=1)[:2] == (2, 0)
+    driver.pool = _FakePool()
+    assert driver._launch_next(0) and driver._launch_next(1)
+    for task, sub in zip(driver.pool.tasks, (v1, odd), strict=True):
+        assert TrainConfig.from_mapping(task.config) == configs[sub.id] and task.config == configs[sub.id].to_mapping()
+        assert task.final_protocol == "" and task.seed == replay_seed(sub.id, 0)  # '': the config's own ruleset's
+        assert task.timeout_s == spec.study.trial_timeout_s >= 3600
+    params = driver._running[1].trial.params
+    assert (params["n_layers"], params["neurons_0"], params["activation_0"]) == (1, 1, "linear")
+    run = driver._running.pop(0)
+    driver._fail(run.trial, "lost: worker died", retryable=True)
+    driver._enqueue_retries()
+    retry = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    assert len(retry) == 1 and retry[0].user_attrs[CONFIG_ATTR] == configs[v1.id].to_mapping()
+    assert retry[0].user_attrs["crowd_id"] == v1.id and retry[0].user_attrs["retry_of"] == run.trial.number
+    assert driver._launch_next(0) and driver.pool.tasks[2].config == driver.pool.tasks[0].config
+    assert driver.pool.tasks[2].seed == driver.pool.tasks[0].seed

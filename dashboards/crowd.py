@@ -23,6 +23,7 @@ from optuna.distributions import BaseDistribution, CategoricalDistribution, Floa
 from autotune.convnet import spec
 from autotune.learner.config import TrainConfig
 from dashboards import crowd_data as cd
+from sim.protocols import OFFICIAL
 
 __all__ = [
     "CROWD_STUDY",
@@ -154,7 +155,7 @@ def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | N
         "num_states": config.num_states,
         "param_count": cd.param_count(config),
         "frames_simulated": cd.frames_estimate(sub) or cd.FRAMES_PER_ITERATION * config.train_iterations,
-        "official_protocol": {"v1": "v1-original", "v2": "v2-official"}[sub.engine_version],
+        "official_protocol": OFFICIAL[sub.engine_version],
     }
     if own is not None:
         attrs["own_net_score"] = own["score"]

@@ -27,7 +27,7 @@ from autotune.learner.brain_policy import BrainPolicy, engine_config
 from sim import engine, rules
 from sim.config import ConfigError, EngineConfig
 from sim.layout import CA, CB, CC, CX, CY, F_EGO_SUM, F_LAST_REWARD, F_SCORE_SUM, N_CARS, N_LANES, N_ROWS
-from sim.protocols import PROTOCOLS
+from sim.protocols import CUSTOM, PROTOCOLS
 from sim.simulator import Simulator
 
 LANE_PX = 20  # a lane is 20 px wide (spec §1)
@@ -179,7 +179,7 @@ def record_run(
         raise ConfigError(f"every: must be ≥ 1, got {every}")
     ruleset = ruleset or settings.engine
     config = engine_config(settings, ruleset, other_agents)
-    run_frames = max(frames, PROTOCOLS["custom"].frames) if run_frames is None else run_frames
+    run_frames = max(frames, PROTOCOLS[CUSTOM].frames) if run_frames is None else run_frames
     if run_frames < frames:
         raise ConfigError(f"run_frames: must be ≥ frames ({frames}), got {run_frames}")
     free = FREE[config.ruleset]
@@ -187,7 +187,7 @@ def record_run(
     sim = Simulator(config, n_worlds=1, frames_per_run=run_frames, runs_per_world=1)
     sim.seed_independent(seed)
     policy = BrainPolicy(net, settings, config.ruleset, epsilon=epsilon, name=name)
-    policy.prepare("custom", seed, runs=1)
+    policy.prepare(CUSTOM, seed, runs=1)
     pstate = policy.pstate
     decide = policy.compiled
     cars, grid, fs, ints, mr, cfg = sim.state_arrays

@@ -20,6 +20,7 @@ from autotune.convnet.netjson import NetSettings
 from autotune.convnet.spec import ConvNet
 from autotune.learner.brain_policy import evaluate_net
 from sim.config import ConfigError
+from sim.protocols import V2_OFFICIAL
 
 SE_THRESHOLD = 0.1  # mph: the resolution at which leaderboard scores are compared
 DEFAULT_NETS = (  # three crowd nets of different sizes and engines (dashboards/data/crowd/nets)
@@ -142,7 +143,7 @@ def spread_from_scores(
 def compute_spread(
     nets: Sequence[tuple[str, ConvNet, NetSettings]],
     *,
-    protocol: str = "v2-official",
+    protocol: str = V2_OFFICIAL,
     runs: int = 500,
     frames: int = 2000,
     seed: int | None = None,

@@ -48,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed",
         type=int,
         default=None,
-        help="protocol seed (defaults: v2-official 1, v1-original 2000, v1-distribution 1000, custom 0)",
+        help=f"protocol seed (defaults: {', '.join(f'{p.name} {p.seed}' for p in PROTOCOLS.values())})",
     )
     p.add_argument(
         "--runs",

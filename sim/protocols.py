@@ -49,13 +49,20 @@ class Protocol:
     description: str
 
 
+# protocol names: compare and pass these, never the strings
+V2_OFFICIAL = "v2-official"
+V1_ORIGINAL = "v1-original"
+V1_DISTRIBUTION = "v1-distribution"
+CUSTOM = "custom"
+OFFICIAL: dict[str, str] = {"v1": V1_ORIGINAL, "v2": V2_OFFICIAL}  # ruleset -> its official protocol (the site's score)
+
 PROTOCOLS: dict[str, Protocol] = {
     p.name: p
     for p in (
-        Protocol("v2-official", "v2", 500, 2000, 1, True, "site evaluation worker: 500 × 2,000, run k ↦ PM seed k+1"),
-        Protocol("v1-original", "v1", 10, 100_000, 2000, True, "evaluate.js: 10 × 100,000 in one Math.random stream"),
-        Protocol("v1-distribution", "v1", 200, 10_000, 1000, False, "200 × 10,000, run i ↦ mulberry32(seed + i)"),
-        Protocol("custom", None, 100, 2000, 0, False, "runs × frames as independent worlds, world i ↦ seed + i"),
+        Protocol(V2_OFFICIAL, "v2", 500, 2000, 1, True, "site evaluation worker: 500 × 2,000, run k ↦ PM seed k+1"),
+        Protocol(V1_ORIGINAL, "v1", 10, 100_000, 2000, True, "evaluate.js: 10 × 100,000 in one Math.random stream"),
+        Protocol(V1_DISTRIBUTION, "v1", 200, 10_000, 1000, False, "200 × 10,000, run i ↦ mulberry32(seed + i)"),
+        Protocol(CUSTOM, None, 100, 2000, 0, False, "runs × frames as independent worlds, world i ↦ seed + i"),
     )
 }
 
@@ -172,7 +179,7 @@ def _resolve(config: EngineConfig, protocol: str, runs: int | None, frames: int 
 def evaluate(
     config: EngineConfig,
     policy: Callable[[Observation], Any],
-    protocol: str = "v2-official",
+    protocol: str = V2_OFFICIAL,
     *,
     seed: int | None = None,
     runs: int | None = None,
@@ -198,7 +205,7 @@ def evaluate(
     compiled = getattr(policy, "compiled", None)
     memoryless = not getattr(policy, "stateful", compiled is None)
     builtin = policy if isinstance(policy, BoundPolicy) else None  # runs entirely compiled
-    sequential = proto.sequential or (protocol == "v1-distribution" and not memoryless)
+    sequential = proto.sequential or (protocol == V1_DISTRIBUTION and not memoryless)
 
     def make_sim(runs: int, frames: int) -> Simulator:
         if not sequential:
@@ -206,7 +213,7 @@ def evaluate(
             sim.seed_independent(seed)
             return sim
         sim = Simulator(config, 1, frames, runs)
-        if protocol == "v1-distribution":
+        if protocol == V1_DISTRIBUTION:
             sim.seed_per_run([seed + i for i in range(runs)])
         else:
             sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)

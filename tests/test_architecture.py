@@ -128,3 +128,30 @@ def test_the_checker_catches_violations(tmp_path: Path, monkeypatch: pytest.Monk
         "autotune.search.uses_reports must not import dashboards (dashboards sits above autotune)"
     ]
     assert _violations(cli) == []
+
+
+PROTOCOL_NAMES = ("v2-official", "v1-original", "v1-distribution", "custom")
+PROTOCOLS_HOME = "sim/protocols.py"
+
+
+def _protocol_literals(path: Path) -> list[str]:
+    """Places where code spells a protocol name as a bare string (docstrings and messages are longer strings)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return [
+        f"{path.relative_to(ROOT)}:{node.lineno}: {node.value!r}"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant) and node.value in PROTOCOL_NAMES
+    ]
+
+
+def test_protocol_names_are_constants() -> None:
+    """Protocol names are ``sim.protocols`` constants (V2_OFFICIAL, …, OFFICIAL per ruleset), spelled only there."""
+    from autotune.learner.official import OFFICIAL_PROTOCOL
+    from sim import protocols
+
+    names = (protocols.V2_OFFICIAL, protocols.V1_ORIGINAL, protocols.V1_DISTRIBUTION, protocols.CUSTOM)
+    assert names == PROTOCOL_NAMES and tuple(protocols.PROTOCOLS) == names
+    assert {r: protocols.PROTOCOLS[p].ruleset for r, p in protocols.OFFICIAL.items()} == {"v1": "v1", "v2": "v2"}
+    assert OFFICIAL_PROTOCOL is protocols.OFFICIAL
+    assert _protocol_literals(ROOT / PROTOCOLS_HOME)  # the checker sees the home's own spelling
+    assert [hit for p in MODULES if p != ROOT / PROTOCOLS_HOME for hit in _protocol_literals(p)] == []

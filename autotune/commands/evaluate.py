@@ -28,20 +28,6 @@ from typing import Any
 
 from autotune.search.inspect_cli import add_trial_arguments, evaluate_trial
 
-PROTOCOL_ALIASES = {
-    "v2-official": "v2-official",
-    "v2_official": "v2-official",
-    "official": None,  # the ruleset's official protocol
-    "v1-original": "v1-original",
-    "v1_original": "v1-original",
-    "evaluate.js": "v1-original",
-    "v1-distribution": "v1-distribution",
-    "v1_distribution": "v1-distribution",
-    "v1-dist": "v1-distribution",
-    "v1_dist": "v1-distribution",
-    "custom": "custom",
-}
-
 
 def add_parser(subparsers: Any) -> None:
     """``autotune evaluate``: its options, help text and ``func=run``."""
@@ -87,20 +73,18 @@ def evaluate(args: argparse.Namespace) -> dict[str, Any]:
     """The evaluation of the parsed arguments, as the JSON-able result."""
     from autotune.convnet.netjson import load
     from autotune.learner.brain_policy import evaluate_net
-    from autotune.learner.official import OFFICIAL_PROTOCOL
+    from sim.config import ConfigError
+    from sim.protocols import OFFICIAL, PROTOCOLS, V1_DISTRIBUTION, V1_ORIGINAL
 
+    # the protocol names, with "_" for "-", and these spellings (None: the ruleset's official protocol)
+    aliases = {"official": None, "evaluate.js": V1_ORIGINAL, "v1-dist": V1_DISTRIBUTION}
     net, settings = load(args.net, args.config)
-    key = args.protocol.strip().lower()
-    if key not in PROTOCOL_ALIASES:
-        from sim.config import ConfigError
-
-        raise ConfigError(
-            f"protocol: '{args.protocol}' is not a protocol; "
-            "use one of v2-official, v1-original, v1-distribution, custom"
-        )
-    protocol = PROTOCOL_ALIASES[key]
+    key = args.protocol.strip().lower().replace("_", "-")
+    if key not in PROTOCOLS and key not in aliases:
+        raise ConfigError(f"protocol: '{args.protocol}' is not a protocol; use one of {', '.join(PROTOCOLS)}")
+    protocol = key if key in PROTOCOLS else aliases[key]
     if protocol is None:
-        protocol = OFFICIAL_PROTOCOL[args.ruleset or settings.engine]
+        protocol = OFFICIAL[args.ruleset or settings.engine]
     result = evaluate_net(
         net,
         settings,

@@ -66,12 +66,21 @@ from autotune.convnet.random import build_draws, gauss_skip
 from autotune.convnet.spec import NUM_ACTIONS, ConvNet
 from sim import engine
 from sim.config import ConfigError, EngineConfig
-from sim.protocols import PROTOCOLS, EvalResult, ProgressFn, evaluate
+from sim.protocols import (
+    CUSTOM,
+    PROTOCOLS,
+    V1_DISTRIBUTION,
+    V1_ORIGINAL,
+    V2_OFFICIAL,
+    EvalResult,
+    ProgressFn,
+    evaluate,
+)
 from sim.rng import mulberry32_advance
 from sim.simulator import Simulator
 
 MAX_BRAINS = 11  # the ego + up to 10 agents
-SEQUENTIAL_PROTOCOLS = ("v2-official", "v1-original", "v1-distribution")  # one world: the brain's own driver
+SEQUENTIAL_PROTOCOLS = (V2_OFFICIAL, V1_ORIGINAL, V1_DISTRIBUTION)  # one world: the brain's own driver
 V1_LOAD_DRAWS = 60  # loading the v1 engine constructs 20 cars, 3 draws each
 
 # gcfg (int64) fields
@@ -260,7 +269,7 @@ class BrainPolicy:
             raise ConfigError(f"protocol: '{protocol}' is not a protocol; use one of {', '.join(PROTOCOLS)}")
         proto = PROTOCOLS[protocol]
         seed = proto.seed if seed is None else int(seed)
-        if protocol == "custom":
+        if protocol == CUSTOM:
             n = proto.runs if runs is None else runs
             caches = np.array([build_draws(self.net, seed + i, gauss_cache)[1] for i in range(n)], dtype=np.int64)
             self.reset(n, caches)
@@ -269,9 +278,9 @@ class BrainPolicy:
         built, cache, _draws = build_draws(self.net, seed, gauss_cache)
         self.reset(1, np.array([cache], dtype=np.int64))
         state: int | None = built
-        if protocol == "v1-original" and engine_load:
+        if protocol == V1_ORIGINAL and engine_load:
             state = mulberry32_advance(built, V1_LOAD_DRAWS)
-        elif protocol == "v1-distribution":
+        elif protocol == V1_DISTRIBUTION:
             state = None
         self.stream_state = state
         return state
@@ -335,7 +344,7 @@ def resolve_ruleset(settings: NetSettings, protocol: str, ruleset: str | None) -
 def evaluate_net(
     net: ConvNet,
     settings: NetSettings,
-    protocol: str = "v2-official",
+    protocol: str = V2_OFFICIAL,
     *,
     ruleset: str | None = None,
     seed: int | None = None,

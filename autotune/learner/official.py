@@ -13,11 +13,11 @@ from typing import Any
 from autotune.convnet.netjson import NetSettings, dumps_net, loads_net
 from autotune.learner.brain_policy import evaluate_net
 from autotune.learner.config import TrainConfig
-from sim.protocols import EvalResult
+from sim.protocols import OFFICIAL, EvalResult
 
 __all__ = ["OFFICIAL_PROTOCOL", "evaluate_official", "net_settings", "official_protocol"]
 
-OFFICIAL_PROTOCOL = {"v1": "v1-original", "v2": "v2-official"}  # ruleset -> its official evaluation protocol
+OFFICIAL_PROTOCOL = OFFICIAL  # ruleset -> its official evaluation protocol (``sim.protocols.OFFICIAL``)
 
 
 def official_protocol(config: TrainConfig) -> str:

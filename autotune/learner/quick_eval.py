@@ -10,7 +10,7 @@ import torch
 
 from autotune.convnet.deepqlearn import explore_rows, js_argmax_rows, shift_windows, warmup_rows
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
-from sim.protocols import EvalResult, evaluate
+from sim.protocols import CUSTOM, EvalResult, evaluate
 
 __all__ = ["QUICK_EVAL_SEED", "GreedyPolicy", "quick_evaluate"]
 
@@ -90,6 +90,6 @@ def quick_evaluate(
     old = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        return evaluate(config.engine_config, policy, "custom", seed=seed, runs=runs, frames=frames)
+        return evaluate(config.engine_config, policy, CUSTOM, seed=seed, runs=runs, frames=frames)
     finally:
         numba.set_num_threads(old)

@@ -169,11 +169,49 @@ Reporter = Callable[[int, int, float], Any]
 """``reporter(step_index, frames_done, quick_score)`` → truthy to stop (or raise ``StopTraining``)."""
 
 
-def _seed_material(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence, int, np.random.SeedSequence]:
-    ss = np.random.SeedSequence(int(seed))
-    s_brain, s_agents, s_sim, s_eval = ss.spawn(4)
-    sim_state = int(s_sim.generate_state(1, np.uint32)[0])
-    return s_brain, s_agents, sim_state, s_eval
+@dataclasses.dataclass(frozen=True)
+class _Seeds:
+    """Every random source of one training run, derived from its seed (nothing global)."""
+
+    seed: int
+    """The run's seed (``train``'s argument)."""
+    brain: np.random.SeedSequence
+    """The learner's draws and its torch generator (``DeepQLearner``)."""
+    agents: np.random.SeedSequence
+    """The v2 training agents' draws."""
+    sim_state: int
+    """The engine's ``Math.random`` state (independent stream)."""
+    eval: np.random.SeedSequence
+    """The quick evaluations' exploration draws."""
+    original: OriginalStream | None
+    """``stream="original"``: the original harness's one ``Math.random`` stream, else None."""
+
+    @classmethod
+    def derive(cls, seed: int, stream: str) -> _Seeds:
+        s_brain, s_agents, s_sim, s_eval = np.random.SeedSequence(int(seed)).spawn(4)
+        sim_state = int(s_sim.generate_state(1, np.uint32)[0])
+        original = OriginalStream(seed) if stream == "original" else None
+        return cls(int(seed), s_brain, s_agents, sim_state, s_eval, original)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Reporting:
+    """How a training run reports: the curve's schedule, its quick evaluations, the reporter, the progress bar."""
+
+    points: int
+    """Curve points, one every ``1/points`` of the ego decisions."""
+    quick_eval: bool
+    """Whether each point carries a quick score (``quick_evaluate``)."""
+    runs: int
+    """Quick-evaluation runs (independent custom-protocol worlds)."""
+    frames: int
+    """Frames per quick-evaluation run."""
+    seed: int
+    """Quick-evaluation seed (world i ↦ seed + i, the same for every trial)."""
+    reporter: Reporter | None
+    """``reporter(k, frames_done, quick_score)`` at every point; truthy or ``StopTraining`` stops training."""
+    progress: Callable[[int, int], None] | None
+    """``progress(frames_done, total_frames)`` about every 1 % of the decisions."""
 
 
 def train(
@@ -221,8 +259,16 @@ def train(
         raise ValueError(f"report_points: must be ≥ 1, got {report_points}")
     if stream not in ("independent", "original"):
         raise ConfigError(f"stream: '{stream}' is not a stream; use independent or original")
-    s_brain, s_agents, sim_state, s_eval = _seed_material(seed)
-    original = OriginalStream(seed) if stream == "original" else None
+    seeds = _Seeds.derive(seed, stream)
+    reporting = _Reporting(
+        points=report_points,
+        quick_eval=quick_eval,
+        runs=quick_eval_runs,
+        frames=quick_eval_frames,
+        seed=quick_eval_seed,
+        reporter=reporter,
+        progress=progress,
+    )
     if torch_threads is None and not process_configured():
         torch_threads = 1
     old_threads = torch.get_num_threads()
@@ -231,36 +277,19 @@ def train(
         torch.set_flush_denormal(True)  # tiny activations must not hit the slow denormal path (reset to off after)
     try:
         with torch.no_grad():
-            return _train(
-                config, seed, reporter, report_points, quick_eval, quick_eval_runs, quick_eval_frames,
-                quick_eval_seed, progress, s_brain, s_agents, sim_state, s_eval, original,
-            )  # fmt: skip
+            return _train(config, seeds, reporting)
     finally:
         if torch_threads is not None:
             torch.set_num_threads(old_threads)
             torch.set_flush_denormal(False)
 
 
-def _train(
-    config: TrainConfig,
-    seed: int,
-    reporter: Reporter | None,
-    report_points: int,
-    quick_eval: bool,
-    quick_eval_runs: int,
-    quick_eval_frames: int,
-    quick_eval_seed: int,
-    progress: Callable[[int, int], None] | None,
-    s_brain: np.random.SeedSequence,
-    s_agents: np.random.SeedSequence,
-    sim_state: int,
-    s_eval: np.random.SeedSequence,
-    original: OriginalStream | None,
-) -> TrainResult:
+def _train(config: TrainConfig, seeds: _Seeds, reporting: _Reporting) -> TrainResult:
     t0 = time.perf_counter()
     c0 = time.process_time()
-    brain = DeepQLearner(config, s_brain, stream=original)
-    eval_rng = np.random.default_rng(s_eval)
+    seed, original, progress = seeds.seed, seeds.original, reporting.progress
+    brain = DeepQLearner(config, seeds.brain, stream=original)
+    eval_rng = np.random.default_rng(seeds.eval)
     runs, frames_per_run = config.schedule
     curve: list[CurvePoint] = []
     eval_seconds = 0.0
@@ -272,7 +301,7 @@ def _train(
         return _result(config, seed, brain, curve, None, 0, (t0, c0), (eval_seconds, eval_cpu), result)
 
     sim = Simulator(config.engine_config, 1, frames_per_run, runs)
-    start_state = original.state if original is not None else sim_state
+    start_state = original.state if original is not None else seeds.sim_state
     if config.ruleset == "v2":
         # engine load, then training mode: brain.reset_seed and one reset_seed per agent copy existing at load
         sim.seed_training(start_state, brain_draws=1 + min(config.other_agents, 9))
@@ -283,9 +312,9 @@ def _train(
     decisions_per_run = -(-frames_per_run // 30)
     total_decisions = runs * decisions_per_run
     total_frames = runs * frames_per_run
-    marks = [max(1, round(total_decisions * (k + 1) / report_points)) for k in range(report_points)]
+    marks = [max(1, round(total_decisions * (k + 1) / reporting.points)) for k in range(reporting.points)]
     progress_every = max(1, total_decisions // 100)
-    agents = TrainingAgents(config, brain, s_agents, original) if config.other_agents > 0 else None
+    agents = TrainingAgents(config, brain, seeds.agents, original) if config.other_agents > 0 else None
 
     learn = brain.learn
     step = sim.step_single  # the simulator's public single-world fast path
@@ -305,10 +334,7 @@ def _train(
                 if decisions >= next_mark:
                     te = time.perf_counter()
                     ce = time.process_time()
-                    stop = _report(
-                        k_mark, brain, sim, config, curve, quick_eval, quick_eval_runs, quick_eval_frames,
-                        quick_eval_seed, eval_rng, reporter, t0,
-                    )  # fmt: skip
+                    stop = _report(k_mark, brain, sim, config, curve, reporting, eval_rng, t0)
                     eval_seconds += time.perf_counter() - te
                     eval_cpu += time.process_time() - ce
                     k_mark += 1
@@ -337,18 +363,17 @@ def _report(
     sim: Simulator,
     config: TrainConfig,
     curve: list[CurvePoint],
-    quick_eval: bool,
-    runs: int,
-    frames: int,
-    seed: int,
+    reporting: _Reporting,
     rng: np.random.Generator,
-    reporter: Reporter | None,
     t0: float,
 ) -> str | None:
     """Record a curve point, call the reporter; returns a stop reason or None."""
     score: float | None = None
-    if quick_eval:
-        res = quick_evaluate(brain.module, config, runs=runs, frames=frames, seed=seed, rng=rng)
+    reporter = reporting.reporter
+    if reporting.quick_eval:
+        res = quick_evaluate(
+            brain.module, config, runs=reporting.runs, frames=reporting.frames, seed=reporting.seed, rng=rng
+        )
         score = res.mean
     mean_reward, loss = brain.take_stats()
     frames_done = sim.frames_simulated

@@ -13,22 +13,30 @@ import hashlib
 import os
 from pathlib import Path
 
+COMPILED_PACKAGES = ("sim", "autotune")  # the packages whose compiled sources key numba's cache
+
+
+def numba_cache_key(root: Path) -> str:
+    """Hash of every compiled source (a ``.py`` file mentioning numba) under ``root/sim`` and ``root/autotune``,
+    every subpackage at any depth; pure-Python files do not count, so their edits keep the cache."""
+    digest = hashlib.sha1()
+    for package in COMPILED_PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            source = path.read_bytes()
+            if b"numba" in source:
+                digest.update(path.relative_to(root).as_posix().encode())
+                digest.update(source)
+    return digest.hexdigest()[:16]
+
 
 def _configure_numba_cache() -> None:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return
     import numba
 
-    root = Path(__file__).resolve().parent.parent
-    digest = hashlib.sha1()
-    for package in ("sim", "autotune"):
-        for path in sorted((root / package).rglob("*.py")):  # every subpackage (autotune/convnet, …/learner, …)
-            source = path.read_bytes()
-            if b"numba" in source:  # only compiled code can go stale; pure-Python edits keep the cache
-                digest.update(path.relative_to(root).as_posix().encode())
-                digest.update(source)
+    key = numba_cache_key(Path(__file__).resolve().parent.parent)
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "deeptraffic-autotune" / "numba"
-    numba.config.CACHE_DIR = str(base / digest.hexdigest()[:16])
+    numba.config.CACHE_DIR = str(base / key)
 
 
 _configure_numba_cache()

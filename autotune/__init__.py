@@ -4,6 +4,10 @@ Layers, bottom to top: ``sim`` (the engines) → ``autotune.convnet`` (convnetjs
 ``autotune.learner`` (deepqlearn: training, exact evaluation) → ``autotune.search`` (Optuna/Ray
 studies) → ``autotune.cli``. Attributes resolve on first use so that code needing only the net
 format (e.g. ``dashboards``) never imports torch.
+
+No exported name is also the name of a submodule: importing ``autotune.train`` (the
+``python -m autotune.train`` shim) sets the package attribute ``train`` to that module, so the
+training function lives at ``from autotune.learner import train``.
 """
 
 from __future__ import annotations
@@ -23,8 +27,8 @@ _EXPORTS: dict[str, str] = {
     "PRESETS": "autotune.learner.config",
     "preset": "autotune.learner.config",
     "load_toml": "autotune.learner.config",
-    # learner
-    "train": "autotune.learner.training",
+    # learner (the training function is ``autotune.learner.train``: ``autotune.train`` is the
+    # ``python -m autotune.train`` module, and no export may carry a submodule's name)
     "TrainResult": "autotune.learner.training",
     "CurvePoint": "autotune.learner.training",
     "StopTraining": "autotune.learner.training",

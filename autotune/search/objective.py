@@ -159,10 +159,7 @@ def _run(
     finish: Callable[..., TrialOutcome],
 ) -> TrialOutcome:
     from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, net_settings, official_protocol
-
-    # not ``from autotune import train``: that name is also the ``autotune.train`` shim module, and once
-    # the shim is imported the package attribute is the module, not the function
-    from autotune.learner.training import train
+    from autotune.learner import train  # (``autotune.train`` is the ``python -m autotune.train`` module)
     from autotune.search.space import param_count
 
     config = TrainConfig.from_mapping(task.config)

@@ -299,11 +299,11 @@ def test_shared_decision_rules_make_the_replicas_decisions(ruleset: str, tw: int
     from autotune.learner.config import TrainConfig
     from sim.rng import mrand
 
-    config = TrainConfig(
+    config = TrainConfig.from_mapping(dict(
         ruleset=ruleset, lanes_side=1, patches_ahead=2, patches_behind=1, temporal_window=tw, layers="fc:6:relu",
         experience_size=500, start_learn_threshold=400, learning_steps_burnin=burnin, learning_steps_total=total,
         epsilon_min=0.3, epsilon_test_time=0.3,
-    )  # fmt: skip
+    ))  # fmt: skip
     states = np.random.default_rng(tw).random((120, config.num_states)) * 3.0
     (mr0, cache0), replica, net = _replica_decisions(config, 4242, states)
     greedy_at: set[int] = set()

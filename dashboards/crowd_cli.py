@@ -4,6 +4,7 @@
     autotune crowd replay [--filter EXPR] [--limit N] [--seeds K] [--workers N] [--storage URL] [--study crowd-replay]
                           [--enqueue-only]
     autotune compare STUDY [--crowd STUDY] [--replay STUDY] [--storage URL] --out report.html [--no-dashboard]
+                     [--spread-runs N | --no-spread]
 
 ``import`` writes the packaged crowd (``dashboards.crowd_data``) as an Optuna study, one COMPLETE
 trial per scored submission (idempotent); ``--own-nets`` first scores the 25 human nets with their
@@ -17,7 +18,9 @@ protocol of the submission's engine, no pruning. Then it prints self-reported ag
 trials. ``--filter`` is a small expression over the CSV columns, e.g.
 ``engine_version == 'v2' and reported_score_mph > 70`` (parsed with ``ast``, never ``eval``).
 ``compare`` writes the self-contained HTML report and attaches its figures to the study in
-optuna-dashboard. Bad input: one line on stderr, exit status 2.
+optuna-dashboard; its evaluation-spread panel scores three crowd nets ``--spread-runs`` times with
+the exact evaluator (``dashboards.spread.crowd_spread``), cached in ``runs/.spread-cache/`` by
+(nets, runs) so a second compare does not score them again. Bad input: one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
@@ -29,18 +32,20 @@ import operator
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sim.config import ConfigError
 
 if TYPE_CHECKING:
     from autotune.search.spec import StudySpec
+    from dashboards.spread import SpreadData
 
 EXIT_USAGE = 2
 
 __all__ = [
     "FilterError", "compile_filter", "add_parser", "run", "score_own_nets", "enqueue_replay", "replay_seed",
-    "replay_spec", "replay_table",
+    "replay_spec", "replay_table", "cached_crowd_spread", "SPREAD_CACHE",
 ]  # fmt: skip
 
 REPLAY_TRIAL_TIMEOUT_S = 24 * 3600.0  # a crowd setting trains as long as it says (up to 1,000,000 iterations)
@@ -382,6 +387,11 @@ def add_parser(subparsers: Any) -> None:
     cmp.add_argument("--out", required=True, help="HTML file to write")
     cmp.add_argument("--seed", type=int, default=0, help="seed of the t-SNE and importance evaluators (default 0)")
     cmp.add_argument("--no-dashboard", action="store_true", help="do not attach the figures to the study")
+    cmp.add_argument(
+        "--spread-runs", type=int, default=500, metavar="N",
+        help="evaluation runs per net of the spread panel (default 500, the site's; cached under runs/)",
+    )  # fmt: skip
+    cmp.add_argument("--no-spread", action="store_true", help="skip the evaluation-spread panel (no net is scored)")
     cmp.set_defaults(func=run, command_name="compare")
 
 
@@ -498,6 +508,10 @@ class _ReplayProgress:
 def _compare(args: argparse.Namespace) -> int:
     from autotune.search.storage import load_study, open_storage, study_names
     from dashboards import crowd, report
+    from dashboards.extract import Empty
+
+    if not args.no_spread and args.spread_runs < 2:
+        raise ConfigError(f"--spread-runs: need at least 2 runs, got {args.spread_runs}")
 
     storages = open_storage(args.storage, args.study, heartbeat=False)
     automated = load_study(storages, args.study)
@@ -513,7 +527,8 @@ def _compare(args: argparse.Namespace) -> int:
     replay_storages = open_storage(args.storage, replay_name, heartbeat=False)
     if args.replay or replay_name in study_names(replay_storages):
         replay = load_study(replay_storages, replay_name)
-    built = report.build_report(automated, crowd_study, replay=replay, seed=args.seed)
+    spread = Empty("not computed (--no-spread)") if args.no_spread else cached_crowd_spread(args.spread_runs)
+    built = report.build_report(automated, crowd_study, replay=replay, spread=spread, seed=args.seed)
     path = report.write_html(built, args.out)
     shown = sum(1 for s in built.sections if not isinstance(s.figure, report.Empty))
     print(f"wrote {path} ({shown} of {len(built.sections)} panels with data)")
@@ -524,6 +539,41 @@ def _compare(args: argparse.Namespace) -> int:
         ids = report.attach_to_dashboard(automated, built)
         print(f"attached {len(ids)} figure(s) and a note to study '{args.study}' for optuna-dashboard")
     return 0
+
+
+SPREAD_CACHE = Path("runs") / ".spread-cache"
+"""Where ``compare`` keeps computed spread data, one JSON file per (nets, runs, scoring settings)."""
+
+
+def cached_crowd_spread(runs: int, cache_dir: Path = SPREAD_CACHE) -> SpreadData:
+    """``spread.crowd_spread(runs=runs)`` for the default nets, read from / written to ``cache_dir``."""
+    import hashlib
+    import json
+
+    from dashboards import spread
+
+    key = {"nets": list(spread.DEFAULT_NETS), "runs": runs, "format": 1}
+    path = cache_dir / f"spread-{hashlib.sha1(json.dumps(key).encode()).hexdigest()[:12]}.json"
+    try:
+        stored = json.loads(path.read_text())
+        nets = tuple(spread.NetSpread(**n) for n in stored.pop("nets"))
+        data = spread.SpreadData(**stored, nets=nets)
+        if [n.name for n in data.nets] == key["nets"] and data.runs == runs:
+            print(f"evaluation spread: {len(nets)} nets × {runs} runs from {path}")
+            return data
+    except (OSError, ValueError, TypeError, KeyError):
+        pass  # missing or unreadable: compute it again
+    t0 = time.perf_counter()
+    data = spread.crowd_spread(runs=runs)
+    print(f"evaluation spread: {len(data.nets)} nets × {runs} runs scored in {time.perf_counter() - t0:.1f} s")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(dataclasses.asdict(data)))
+        tmp.replace(path)
+    except OSError as exc:  # a read-only tree: the report still gets the data
+        print(f"  (not cached: {exc})", file=sys.stderr)
+    return data
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,7 +7,7 @@ Every function takes the automated and the crowd side and returns a figure with 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import plotly.graph_objects as go
@@ -33,7 +33,6 @@ __all__ = [
     "tsne_figure",
     "importance_figure",
     "replay_figure",
-    "spread_figure",
 ]
 
 COLORS = {"autotune": "#1f77b4", "crowd": "#d62728"}
@@ -289,18 +288,4 @@ def replay_figure(replayed: Sequence[ReplayRow] | Empty, own_nets: Sequence[Repl
     fig.update_xaxes(title_text="self-reported score [mph]")
     fig.update_yaxes(title_text="measured score [mph] (exact engine, official protocol)")
     fig.update_layout(title="Self-reported against measured score", height=480, **LAYOUT)
-    return fig
-
-
-def spread_figure(runs: Sequence[int], curves: Mapping[str, Sequence[float]], target: float = 0.1) -> go.Figure | Empty:
-    """Standard error of an evaluated score against the number of evaluation runs, one line per net."""
-    if not runs or not curves:
-        return Empty("no evaluation-spread data (the spread computation has not been run)")
-    fig = go.Figure()
-    for name, se in curves.items():
-        fig.add_trace(go.Scatter(x=list(runs), y=list(se), mode="lines+markers", name=name))
-    fig.add_hline(y=target, line={"dash": "dot", "color": "grey"}, annotation_text=f"{target} mph")
-    fig.update_xaxes(type="log", title_text="evaluation runs")
-    fig.update_yaxes(type="log", title_text="standard error of the score [mph]")
-    fig.update_layout(title="Evaluation spread against the number of runs", height=420, **LAYOUT)
     return fig

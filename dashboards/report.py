@@ -14,6 +14,7 @@ import html
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import optuna
 import plotly.graph_objects as go
@@ -22,16 +23,10 @@ import plotly.io as pio
 from dashboards import extract, figures, insights
 from dashboards.extract import Empty, StudyData
 
-__all__ = ["Section", "Report", "SpreadData", "build_report", "render_html", "write_html", "attach_to_dashboard"]
+if TYPE_CHECKING:  # dashboards.spread imports the evaluator (numba): only when a spread is drawn
+    from dashboards.spread import SpreadData
 
-
-@dataclasses.dataclass(frozen=True)
-class SpreadData:
-    """Standard error of an evaluated score against the number of evaluation runs, per net."""
-
-    runs: list[int]
-    standard_error: dict[str, list[float]]
-    target: float = 0.1
+__all__ = ["Section", "Report", "build_report", "render_html", "write_html", "attach_to_dashboard"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,8 +96,8 @@ def build_report(
         Section(
             "spread",
             "Evaluation spread",
-            "Standard error of a net's evaluated score against the number of evaluation runs: how many runs "
-            "until it falls below 0.1 mph.",
+            "Standard error of a net's evaluated score against the number of evaluation runs (exact evaluator, "
+            "three crowd nets): how many runs until it stays below 0.1 mph, and the bootstrap band of the median.",
             _spread(spread),
         ),
         Section(
@@ -159,7 +154,12 @@ def _spread(spread: SpreadData | Empty | None) -> go.Figure | Empty:
         return Empty("evaluation-spread data not supplied to this report")
     if isinstance(spread, Empty):
         return spread
-    return figures.spread_figure(spread.runs, spread.standard_error, spread.target)
+    if not spread.nets:
+        return Empty("no net in the evaluation-spread data")
+    from dashboards.spread import spread_figure
+
+    fig: go.Figure = spread_figure(spread)
+    return fig
 
 
 def _fmt(value: float | None, spec: str) -> str:

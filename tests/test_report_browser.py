@@ -16,8 +16,9 @@ from tests.browser import assert_page_ok, require_browser
 from tests.test_report_data import PRUNED, contract_study
 
 
-def test_compare_report_renders_in_chromium(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_compare_report_renders_in_chromium(tmp_path: Path, capsys, monkeypatch) -> None:  # noqa: ANN001
     require_browser()
+    monkeypatch.chdir(tmp_path)  # the spread cache goes to ./runs/
     storage = f"sqlite:///{tmp_path / 'studies.db'}"
     contract_study(storage, name="auto", n=12, states={4: PRUNED})
     assert main(["crowd", "import", "--storage", storage], owns_process=False) == 0
@@ -28,13 +29,15 @@ def test_compare_report_renders_in_chromium(tmp_path: Path, capsys) -> None:  # 
         trial = replay.ask()
         replay.tell(trial, value)
     out = tmp_path / "report.html"
-    assert main(["compare", "auto", "--storage", storage, "--out", str(out)], owns_process=False) == 0
+    compare = ["compare", "auto", "--storage", storage, "--out", str(out), "--spread-runs", "50"]
+    assert main(compare, owns_process=False) == 0
     printed = capsys.readouterr().out
-    assert "wrote" in printed and "(7 of 8 panels with data)" in printed  # spread: no data supplied
-    page = assert_page_ok(out, tmp_path / "report.png", min_figures=7)
+    assert "wrote" in printed and "(8 of 8 panels with data)" in printed, printed
+    assert "evaluation spread: 3 nets × 50 runs scored" in printed
+    assert list((tmp_path / "runs" / ".spread-cache").glob("spread-*.json"))
+    page = assert_page_ok(out, tmp_path / "report.png", min_figures=8)
     ids = {f.id for f in page.figures}
-    assert ids == {
-        f"fig-{k}" for k in ("progress", "size", "hyperparameters", "tsne", "compute", "importances", "replay")
-    }
+    keys = ("progress", "size", "hyperparameters", "spread", "tsne", "compute", "importances", "replay")
+    assert ids == {f"fig-{k}" for k in keys}
     assert page.title == "auto vs the crowd"
     assert page.screenshot is not None and page.screenshot.stat().st_size > 10_000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 from pathlib import Path
@@ -11,9 +12,9 @@ import optuna
 import pytest
 
 from autotune.learner.config import TrainConfig
-from dashboards import crowd, extract, insights, report
+from dashboards import crowd, extract, insights, report, spread
 from dashboards import crowd_data as cd
-from dashboards.crowd_cli import FilterError, compile_filter, enqueue_replay
+from dashboards.crowd_cli import FilterError, cached_crowd_spread, compile_filter, enqueue_replay
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 COMPLETE, PRUNED, FAIL = (
@@ -293,11 +294,14 @@ def test_filter_expressions() -> None:
 def test_report_sections_html_and_dashboard(tmp_path: Path, crowd_study: optuna.Study) -> None:
     storage = f"sqlite:///{tmp_path / 'auto.db'}"
     study = contract_study(storage, n=12, states={3: PRUNED})
-    built = report.build_report(study, crowd_study, spread=report.SpreadData([1, 10, 100], {"net": [1.0, 0.3, 0.09]}))
+    built = report.build_report(study, crowd_study, spread=cached_crowd_spread(20, tmp_path))
     keys = [s.key for s in built.sections]
     assert keys == ["progress", "size", "hyperparameters", "spread", "tsne", "compute", "importances", "replay"]
     empty = {s.key: s.figure.reason for s in built.sections if isinstance(s.figure, extract.Empty)}
     assert set(empty) == {"replay"} and "no crowd replay study given" in empty["replay"]
+    (panel,) = [s.figure for s in built.sections if s.key == "spread"]  # dashboards.spread's figure, real nets
+    assert not isinstance(panel, extract.Empty)
+    assert {t.name.split(" (")[0] for t in panel.data if t.name} == set(spread.DEFAULT_NETS)
     for s in built.sections:
         if not isinstance(s.figure, extract.Empty):
             assert s.figure.data and all(len(t.x) > 0 for t in s.figure.data if getattr(t, "x", None) is not None)
@@ -312,3 +316,16 @@ def test_report_sections_html_and_dashboard(tmp_path: Path, crowd_study: optuna.
     note = get_note(optuna.load_study(study_name="auto", storage=storage))
     assert "| size matters | Spearman ρ(param_count, score) | +0.276 (n=116)" in str(note)
     assert report.attach_to_dashboard(study, built) == ids  # fixed ids: re-running replaces, not duplicates
+
+
+def test_spread_cache(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    """compare's spread data: the three default crowd nets scored by the exact evaluator once, then read back."""
+    first = cached_crowd_spread(20, tmp_path)
+    assert "scored in" in capsys.readouterr().out
+    assert [n.name for n in first.nets] == list(spread.DEFAULT_NETS) and first.runs == 20
+    assert all(len(n.scores) == 20 and n.se[-1] > 0 for n in first.nets)
+    again = cached_crowd_spread(20, tmp_path)
+    assert "from " + str(tmp_path) in capsys.readouterr().out  # no scoring the second time
+    assert again.nets[0].se[1:] == first.nets[0].se[1:] and math.isnan(again.nets[0].se[0])
+    assert dataclasses.replace(again, nets=()) == dataclasses.replace(first, nets=())
+    assert cached_crowd_spread(21, tmp_path).runs == 21 and len(list(tmp_path.glob("spread-*.json"))) == 2

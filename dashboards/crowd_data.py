@@ -22,6 +22,7 @@ from typing import Any
 
 from autotune.convnet import netjson, spec
 from autotune.learner.config import TrainConfig
+from sim import fields
 from sim.config import ConfigError, nearest_key_error
 
 __all__ = [
@@ -331,7 +332,7 @@ def _trainer_options(sub: Submission) -> dict[str, Any] | None:
     if sub.trainer_method.startswith("default"):
         return None  # no tdtrainer_options in the file: the Brain's own trainer options apply
     options: dict[str, Any] = {"method": sub.trainer_method}
-    for key in ("learning_rate", "momentum", "batch_size", "l2_decay", "l1_decay"):
+    for key in fields.TRAINER_NAMES:
         value = getattr(sub, key)
         if value is not None:
             options[key] = value
@@ -352,16 +353,7 @@ def config_mapping(sub: Submission) -> dict[str, Any]:
     if sub.other_agents is not None:
         out["otherAgents"] = sub.other_agents
     opt: dict[str, Any] = {}
-    for key in (
-        "temporal_window",
-        "experience_size",
-        "start_learn_threshold",
-        "gamma",
-        "learning_steps_total",
-        "learning_steps_burnin",
-        "epsilon_min",
-        "epsilon_test_time",
-    ):
+    for key in fields.OPT_NAMES:
         value = getattr(sub, key)
         if value is not None:
             opt[key] = value

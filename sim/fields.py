@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
-__all__ = ["Field", "FIELDS", "ALIASES", "field", "bounds", "group"]
+__all__ = ["Field", "FIELDS", "ALIASES", "OPT_NAMES", "TRAINER_NAMES", "field", "bounds", "group"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,6 +81,10 @@ FIELDS: tuple[Field, ...] = (
 _BY_NAME = {f.name: f for f in FIELDS}
 ALIASES: dict[str, str] = {f.alias: f.name for f in FIELDS if f.alias}
 """DeepTraffic's camelCase globals → our names."""
+OPT_NAMES: tuple[str, ...] = tuple(f.name for f in FIELDS if f.group == "opt")
+"""The scalar ``opt`` keys of deepqlearn's ``Brain``, in the order net.js / the crowd files write them."""
+TRAINER_NAMES: tuple[str, ...] = tuple(f.name for f in FIELDS if f.group == "trainer")
+"""The numeric ``tdtrainer_options`` keys, in the order net.js / the crowd files write them."""
 
 
 def field(name: str) -> Field:

@@ -619,21 +619,13 @@ def settings_js(settings: NetSettings) -> str:
 def opt_js(settings: NetSettings) -> str:
     """The ``opt`` object literal (only keys that are set; ``tdtrainer_options`` when any trainer key is)."""
     entries = ["  temporal_window: temporal_window"]
-    for key in (
-        "experience_size",
-        "start_learn_threshold",
-        "gamma",
-        "learning_steps_total",
-        "learning_steps_burnin",
-        "epsilon_min",
-        "epsilon_test_time",
-    ):
+    for key in fields.OPT_NAMES[1:]:  # temporal_window: the global above
         v = getattr(settings, key)
         if v is not None:
             entries.append(f"  {key}: {_js_value(v)}")
     entries.append("  layer_defs: layer_defs")
     trainer = []
-    for key in ("learning_rate", "momentum", "batch_size", "l2_decay", "l1_decay"):
+    for key in fields.TRAINER_NAMES:
         v = getattr(settings, key)
         if v is not None:
             trainer.append(f"{key}: {_js_value(v)}")

@@ -86,20 +86,13 @@ TRAINER_DEFAULTS: dict[str, Any] = {
     "eps": 1e-6,
 }
 OPT_KEYS = (
-    "temporal_window",
-    "experience_size",
-    "start_learn_threshold",
-    "gamma",
-    "learning_steps_total",
-    "learning_steps_burnin",
-    "epsilon_min",
-    "epsilon_test_time",
+    *fields.OPT_NAMES,
     "layer_defs",
     "hidden_layer_sizes",
     "tdtrainer_options",
     "random_action_distribution",
 )
-TRAINER_KEYS = ("learning_rate", "momentum", "batch_size", "l2_decay", "l1_decay", "method", "ro", "eps")
+TRAINER_KEYS = (*fields.TRAINER_NAMES, "method", "ro", "eps")
 
 
 def parse_layers(value: Any) -> tuple[spec.Layer, ...]:

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from autotune.convnet import spec
-from autotune.convnet.deepqlearn import js_argmax_rows, js_epsilon
+from autotune.convnet.deepqlearn import BLOCK, BlockUniform, js_argmax_rows, js_epsilon
 from autotune.learner.brain import DeepQLearner
 from autotune.learner.config import TrainConfig
 from autotune.learner.quick_eval import GreedyPolicy
@@ -71,6 +71,11 @@ def test_epsilon_per_decision_and_rf_always_drawn():
         assert b.epsilon == eps
         expected += 2 if 0.999 < eps else 1
         assert draws.n == expected  # rf drawn even when ε is at its floor; no replacement (memory not full)
+
+
+def test_block_uniform_is_the_generator_stream_across_refills():
+    u = BlockUniform(np.random.default_rng(7))
+    assert [u() for _ in range(BLOCK + 3)] == np.random.default_rng(7).random(BLOCK + 3).tolist()
 
 
 def test_exploration_draws_a_second_uniform():

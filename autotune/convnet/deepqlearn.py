@@ -31,7 +31,9 @@ from autotune.convnet.spec import NUM_ACTIONS
 from sim.rng import mrand
 
 __all__ = [
+    "BLOCK",
     "GREEDY",
+    "BlockUniform",
     "argmax_js",
     "explore_action",
     "explore_action_mr",
@@ -53,6 +55,28 @@ GREEDY = -1  # explore_action's answer when the greedy action is to be taken
 # --------------------------------------------------------------------------------------------
 # Python / numpy rules (the torch learner, the training agents, the quick evaluation)
 # --------------------------------------------------------------------------------------------
+
+
+BLOCK = 4096  # BlockUniform's pre-drawn uniforms per refill
+
+
+class BlockUniform:
+    """Uniforms in [0, 1) from a numpy ``Generator``, ``BLOCK`` at a time: one cheap call per draw on the hot path."""
+
+    __slots__ = ("_rng", "_u", "_i")
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self._rng = rng
+        self._u: list[float] = []
+        self._i = 0
+
+    def __call__(self) -> float:
+        i = self._i
+        if i >= len(self._u):
+            self._u = self._rng.random(BLOCK).tolist()
+            i = 0
+        self._i = i + 1
+        return self._u[i]
 
 
 def js_epsilon(age: int, burnin: int, total: int, epsilon_min: float) -> float:

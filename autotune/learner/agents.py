@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from autotune.convnet.deepqlearn import GREEDY, explore_action, js_argmax_rows, js_epsilon, shift_window, warmup_action
-from autotune.learner.brain import BLOCK, DeepQLearner
+from autotune.convnet.deepqlearn import (
+    GREEDY,
+    BlockUniform,
+    explore_action,
+    js_argmax_rows,
+    js_epsilon,
+    shift_window,
+    warmup_action,
+)
+from autotune.learner.brain import DeepQLearner
 from autotune.learner.config import TrainConfig
 from autotune.learner.js_learner import OriginalStream
 from autotune.learner.kernel import numpy_forward_ops
@@ -35,25 +44,15 @@ class TrainingAgents:
         self.config = config
         self.brain = brain
         self.rng = np.random.default_rng(seed)
-        self._u: list[float] = []
-        self._ui = 0
         self._stream = stream
-        if stream is not None:  # the copies draw from the same Math.random as everything else
-            self._uniform = stream.uniform  # type: ignore[method-assign]
+        # the copies draw from the same Math.random as everything else when there is a stream
+        self._uniform: Callable[[], float] = stream.uniform if stream is not None else BlockUniform(self.rng)
         self.tw = config.temporal_window
         self.epsilon = js_epsilon(
             self.tw + 1, config.learning_steps_burnin, config.learning_steps_total, config.epsilon_min
         )
         self.frozen: Any = None
         self._hist: np.ndarray | None = None
-
-    def _uniform(self) -> float:
-        i = self._ui
-        if i >= len(self._u):
-            self._u = self.rng.random(BLOCK).tolist()
-            i = 0
-        self._ui = i + 1
-        return self._u[i]
 
     def act(self, car: int, inputs: np.ndarray) -> int:
         if self.brain.forward_passes <= self.tw:

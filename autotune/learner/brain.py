@@ -38,19 +38,17 @@ not the code:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import torch
 
-from autotune.convnet.deepqlearn import GREEDY, explore_action, js_epsilon, shift_window, warmup_action
+from autotune.convnet.deepqlearn import GREEDY, BlockUniform, explore_action, js_epsilon, shift_window, warmup_action
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
 from autotune.learner.js_learner import OriginalStream
 from autotune.learner.kernel import NP_DTYPES, TORCH_DTYPES, Kernel, build_network, numpy_forward_ops
 
-__all__ = ["DeepQLearner", "DivergedError", "BLOCK"]
-
-
-BLOCK = 4096  # pre-drawn uniforms per refill
+__all__ = ["DeepQLearner", "DivergedError"]
 
 
 class DivergedError(RuntimeError):
@@ -80,12 +78,12 @@ class DeepQLearner:
         self.torch_gen = torch.Generator().manual_seed(int(s_torch.generate_state(1, np.uint64)[0] >> 1))
         self.module, self.layers = build_network(config, self.torch_gen)
         self._stream = stream
+        self._uniform: Callable[[], float] = stream.uniform if stream is not None else BlockUniform(self.rng)
         if stream is not None:  # the original's draws: weights, slots, indices, rf, actions, Vol Gaussians
             shapes = [tuple(lin.weight.shape) for lin in self.module.fc_layers]
             with torch.no_grad():
                 for lin, w in zip(self.module.fc_layers, stream.init_weights(shapes), strict=True):
                     lin.weight.data.copy_(torch.from_numpy(w))
-            self._uniform = stream.uniform  # type: ignore[method-assign]
         self.kernel = Kernel(config, self.module, self.layers, self.torch_gen)
         self._np_ops = numpy_forward_ops(self.module, self.layers, NP_DTYPES[config.dtype])
         np_dtype = NP_DTYPES[config.dtype]
@@ -128,8 +126,6 @@ class DeepQLearner:
         self._total = config.learning_steps_total
         self._eps_min = config.epsilon_min
         self._start = config.start_learn_threshold
-        self._u: list[float] = []
-        self._ui = 0
         # statistics
         self.loss_every = 16
         self._loss_sum = 0.0
@@ -139,14 +135,6 @@ class DeepQLearner:
         self.last_q: np.ndarray | None = None
 
     # -- draws ----------------------------------------------------------------------------------
-    def _uniform(self) -> float:
-        i = self._ui
-        if i >= len(self._u):
-            self._u = self.rng.random(BLOCK).tolist()
-            i = 0
-        self._ui = i + 1
-        return self._u[i]
-
     def _sample_indices(self) -> None:
         n = self.n_exp
         if self._stream is not None:

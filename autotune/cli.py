@@ -12,7 +12,7 @@ import importlib
 import sys
 from typing import NoReturn
 
-EXIT_USAGE = 2
+from autotune.cliutil import EXIT_USAGE, fail
 
 # one module per subcommand, in the order ``autotune --help`` lists them
 SUBCOMMANDS: tuple[str, ...] = (
@@ -29,8 +29,7 @@ class ArgumentParser(argparse.ArgumentParser):
     """argparse with the house error style: one line on stderr, exit status 2, no usage dump."""
 
     def error(self, message: str) -> NoReturn:
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(EXIT_USAGE)
+        raise SystemExit(fail(message))
 
 
 def build_parser() -> argparse.ArgumentParser:

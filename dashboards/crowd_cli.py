@@ -35,13 +35,13 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from autotune.cliutil import add_storage_arguments, fail
 from sim.config import ConfigError
 
 if TYPE_CHECKING:
     from autotune.search.spec import StudySpec
     from dashboards.spread import SpreadData
 
-EXIT_USAGE = 2
 
 __all__ = [
     "FilterError", "compile_filter", "add_parser", "run", "score_own_nets", "enqueue_replay", "replay_seed",
@@ -354,7 +354,7 @@ def add_parser(subparsers: Any) -> None:
     )
     actions = p.add_subparsers(dest="crowd_action", metavar="<action>", required=True)
     imp = actions.add_parser("import", help="write the crowd as an Optuna study (one trial per scored submission)")
-    imp.add_argument("--storage", default="", help="journal file or SQLAlchemy URL (default: runs/<study>/journal.log)")
+    add_storage_arguments(imp, artifacts_help=None)
     imp.add_argument("--study", default="crowd", help="study name (default: crowd)")
     imp.add_argument(
         "--own-nets", action="store_true", help="also score the 25 human nets with their own weights (exact engine)"
@@ -367,7 +367,7 @@ def add_parser(subparsers: Any) -> None:
     rep.add_argument("--limit", type=int, default=0, help="replay at most N submissions (0: all selected)")
     rep.add_argument("--seeds", type=int, default=1, help="training seeds per setting (default 1)")
     rep.add_argument("--workers", type=int, default=1, help="Ray workers = trials trained in parallel (default 1)")
-    rep.add_argument("--storage", default="", help="journal file or SQLAlchemy URL (default: runs/<study>/journal.log)")
+    add_storage_arguments(rep, artifacts_help=None)
     rep.add_argument("--study", default="crowd-replay", help="study name (default: crowd-replay)")
     rep.add_argument(
         "--enqueue-only", action="store_true", help="only enqueue; a later replay of the same study runs them"
@@ -383,7 +383,7 @@ def add_parser(subparsers: Any) -> None:
     cmp.add_argument("study", help="the automated study")
     cmp.add_argument("--crowd", default="", help="crowd study (default: 'crowd' in the storage, else the package data)")
     cmp.add_argument("--replay", default="", help="crowd replay study (default: 'crowd-replay' if the storage has it)")
-    cmp.add_argument("--storage", default="", help="journal file or SQLAlchemy URL (default: runs/<study>/journal.log)")
+    add_storage_arguments(cmp, artifacts_help=None)
     cmp.add_argument("--out", required=True, help="HTML file to write")
     cmp.add_argument("--seed", type=int, default=0, help="seed of the t-SNE and importance evaluators (default 0)")
     cmp.add_argument("--no-dashboard", action="store_true", help="do not attach the figures to the study")
@@ -584,5 +584,4 @@ def run(args: argparse.Namespace) -> int:
     try:
         return commands[args.command_name](args)
     except (ConfigError, CrowdDataError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(str(exc))

@@ -13,12 +13,11 @@ goes on to ``--run-frames`` for its score). Bad input: one line on stderr, exit 
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
-EXIT_USAGE = 2
+from autotune.cliutil import add_storage_arguments, fail
 
 
 def add_parser(subparsers: Any) -> None:
@@ -31,8 +30,11 @@ def add_parser(subparsers: Any) -> None:
     )
     p.add_argument("study", nargs="?", help="study name (its best COMPLETE trial unless --trial)")
     p.add_argument("--trial", type=int, help="trial number within the study (default: the best trial)")
-    p.add_argument("--storage", default="", help="the study's storage (default: runs/<study>/journal.log)")
-    p.add_argument("--artifacts", help="the study's artifact directory (default: beside its storage)")
+    add_storage_arguments(
+        p,
+        storage_help="the study's storage (default: runs/<study>/journal.log)",
+        artifacts_help="the study's artifact directory (default: beside its storage)",
+    )
     p.add_argument("--net", help="a convnetjs net JSON instead of a study trial")
     p.add_argument("--config", help="--net: its DeepTraffic settings (default: <net>.config.json beside it)")
     p.add_argument("--out", required=True, help="output file: *.gif, *.mp4 or *.html")
@@ -103,8 +105,7 @@ def run(args: argparse.Namespace) -> int:
         )
         path = write_replay(rec, out, fps=args.fps)
     except (ConfigError, NetFormatError) as exc:  # ConfigError: also the storage's and records' errors
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(str(exc))
     print(
         f"{path}: {len(rec)} frames of {name} ({rec.config.ruleset}, seed {rec.seed}); "
         f"run score {rec.score:.2f} mph over {rec.run_frames} frames"

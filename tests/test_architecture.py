@@ -14,6 +14,7 @@ from tests.conftest import ROOT
 LAYERS: tuple[tuple[str, int], ...] = (
     ("sim", 0),
     ("autotune.runtime", 1),
+    ("autotune.cliutil", 1),  # the CLIs' shared error exit and storage options (stdlib only)
     ("autotune.convnet", 1),
     ("autotune.learner", 2),
     ("autotune.search", 3),

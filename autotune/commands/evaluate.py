@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from typing import Any
 
+from autotune.cliutil import fail
 from autotune.search.inspect_cli import add_trial_arguments, evaluate_trial
 
 
@@ -111,20 +111,15 @@ def run(args: argparse.Namespace) -> int:
     if args.trial is not None or args.retrain:
         return evaluate_trial(args)  # a study's trial: 0 if its score is reproduced, else 1
     if args.net is None:
-        print("error: --net: required (or --trial STUDY:N)", file=sys.stderr)
-        return 2
+        return fail("--net: required (or --trial STUDY:N)")
     from autotune.convnet.netjson import NetFormatError
     from autotune.convnet.spec import NetSpecError
     from sim.config import ConfigError
 
     try:
         out = evaluate(args)
-    except (NetFormatError, NetSpecError, ConfigError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except ValueError as exc:  # e.g. simulator argument checks
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    except (NetFormatError, NetSpecError, ConfigError, ValueError) as exc:  # ValueError: e.g. simulator arguments
+        return fail(str(exc))
     if args.json:
         print(json.dumps(out))
     else:

@@ -31,10 +31,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from autotune.cliutil import fail
 from autotune.learner.config import PRESETS, ConfigError, TrainConfig, load_toml, preset
 from autotune.learner.official import evaluate_official, net_settings, official_protocol
-
-EXIT_USAGE = 2
 
 
 def _parse_value(text: str) -> Any:
@@ -115,8 +114,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
     except (ConfigError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(str(exc))
 
     import torch
 

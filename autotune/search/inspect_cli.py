@@ -20,16 +20,12 @@ import sys
 from typing import Any
 from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
-EXIT_USAGE = 2
+from autotune.cliutil import add_storage_arguments, fail
+
 EXIT_NO_RECORD = 1  # the study exists but has nothing to show yet
 DEFAULT_PORT = 8080
 
 COMMANDS = ("status", "best", "dashboard")
-
-
-def _storage_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--storage", default="", help="journal file or SQLAlchemy URL (default: runs/<study>/journal.log)")
-    p.add_argument("--artifacts", help="artifact directory of the study (default: beside the journal / runs/<study>/)")
 
 
 def add_parser(subparsers: Any) -> None:
@@ -40,7 +36,7 @@ def add_parser(subparsers: Any) -> None:
         description="Counts by trial state, the best trial, and throughput (trials/h, frames/s) of a study.",
     )
     p.add_argument("study", help="study name")
-    _storage_args(p)
+    add_storage_arguments(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run, inspect="status")
 
@@ -51,7 +47,7 @@ def add_parser(subparsers: Any) -> None:
         "(net.json + net.config.json) and the site-ready net.js.",
     )
     p.add_argument("study", help="study name")
-    _storage_args(p)
+    add_storage_arguments(p)
     p.add_argument("--export", metavar="DIR", help="write net.json, net.config.json and net.js into DIR")
     p.add_argument("--json", action="store_true", help="print the trial record as one JSON object")
     p.set_defaults(func=run, inspect="best")
@@ -63,7 +59,7 @@ def add_parser(subparsers: Any) -> None:
         "serves until Ctrl-C.",
     )
     p.add_argument("study", nargs="?", default="", help="study name (locates the embedded storage and artifacts)")
-    _storage_args(p)
+    add_storage_arguments(p)
     p.add_argument(
         "--port", type=int, default=DEFAULT_PORT, help=f"port on 127.0.0.1 (default {DEFAULT_PORT}; 0: any free port)"
     )
@@ -166,8 +162,11 @@ def add_trial_arguments(p: argparse.ArgumentParser) -> None:
         help="a study's COMPLETE trial: evaluate its stored net again (with --retrain: train it again from its "
         "seed) and compare with its stored official score; exit status 1 if they differ",
     )
-    p.add_argument("--storage", default="", help="--trial: the study's storage (default: runs/<study>/journal.log)")
-    p.add_argument("--artifacts", help="--trial: the study's artifact directory (default: beside its storage)")
+    add_storage_arguments(
+        p,
+        storage_help="--trial: the study's storage (default: runs/<study>/journal.log)",
+        artifacts_help="--trial: the study's artifact directory (default: beside its storage)",
+    )
     p.add_argument("--retrain", action="store_true", help="--trial: retrain its config with its seed, then score it")
 
 
@@ -194,8 +193,7 @@ def evaluate_trial(args: argparse.Namespace) -> int:
         else:
             rep = rescore_trial(storages, study, int(number))
     except ConfigError as exc:  # RecordError included: exit status 1 means "not reproduced" only
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(str(exc))
     if args.json:
         print(json.dumps(rep.to_json()))
     else:
@@ -216,8 +214,6 @@ def run(args: argparse.Namespace) -> int:
     try:
         return {"status": _status, "best": _best, "dashboard": _dashboard}[args.inspect](args)
     except RecordError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_NO_RECORD
+        return fail(str(exc), EXIT_NO_RECORD)
     except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(str(exc))

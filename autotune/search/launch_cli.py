@@ -18,7 +18,8 @@ import shlex
 import sys
 from typing import Any
 
-EXIT_USAGE = 2
+from autotune.cliutil import fail
+
 EXIT_INTERRUPTED = 130
 
 
@@ -49,11 +50,6 @@ def add_parser(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _error(message: str) -> int:
-    print(f"error: {message}", file=sys.stderr)
-    return EXIT_USAGE
-
-
 def run(args: argparse.Namespace) -> int:
     """Validate everything, run the study, print the best trial; 0, 2 (bad input) or 130 (Ctrl-C)."""
     from autotune.search.spec import load_spec
@@ -73,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         driver = Driver(spec, storages, address=args.address)
         driver.open_study()  # create or resume; the sampler is built here (a missing package fails now)
     except ConfigError as exc:
-        return _error(str(exc).splitlines()[0])
+        return fail(str(exc).splitlines()[0])
 
     bar = None if args.quiet else _Bar(spec.study.name, spec.study.n_trials, spec.study.timeout_s)
     driver.progress = bar.update if bar else None
@@ -83,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         print("interrupted: running trials failed (retryable); rerun the same command to resume", file=sys.stderr)
         return EXIT_INTERRUPTED
     except ConnectionError as exc:  # a Ray address that does not answer
-        return _error(f"--address {args.address}: cannot join the Ray cluster ({str(exc).splitlines()[0]})")
+        return fail(f"--address {args.address}: cannot join the Ray cluster ({str(exc).splitlines()[0]})")
     finally:
         if bar is not None:
             bar.close()

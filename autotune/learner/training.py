@@ -211,7 +211,7 @@ class _Reporting:
     reporter: Reporter | None
     """``reporter(k, frames_done, quick_score)`` at every point; truthy or ``StopTraining`` stops training."""
     progress: Callable[[int, int], None] | None
-    """``progress(frames_done, total_frames)`` about every 1 % of the decisions."""
+    """``progress(frames_done, total_frames)`` about every 1 % of the decisions, at least every 1,000."""
 
 
 def train(
@@ -246,7 +246,7 @@ def train(
     k = 0 … report_points − 1. The reporter stops training by returning True or raising
     ``StopTraining``; other exceptions propagate. A diverging net (non-finite Q or loss) ends
     training with ``result.diverged`` set. ``progress(frames_done, total_frames)`` is called about
-    every 1 % (for progress bars).
+    every 1 % of the decisions and at least every 1,000 (progress bars, wall-time limits).
 
     Process settings: after ``autotune.configure_process`` (the CLI, a worker) ``train`` leaves
     torch's threads and denormal flushing as the process set them. ``torch_threads`` (or a process
@@ -313,7 +313,7 @@ def _train(config: TrainConfig, seeds: _Seeds, reporting: _Reporting) -> TrainRe
     total_decisions = runs * decisions_per_run
     total_frames = runs * frames_per_run
     marks = [max(1, round(total_decisions * (k + 1) / reporting.points)) for k in range(reporting.points)]
-    progress_every = max(1, total_decisions // 100)
+    progress_every = max(1, min(1000, total_decisions // 100))  # wall-time limits need a beat on big nets too
     agents = TrainingAgents(config, brain, seeds.agents, original) if config.other_agents > 0 else None
 
     learn = brain.learn

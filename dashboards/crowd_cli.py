@@ -505,28 +505,37 @@ class _ReplayProgress:
             )
 
 
+def _stored_study(storage: str, name: str) -> Any:
+    """The study ``name`` if ``storage`` (or its embedded journal) holds it, else None — creating nothing."""
+    from autotune.search.storage import UnknownStudyError, load_study, open_storage
+
+    try:
+        return load_study(open_storage(storage, name, heartbeat=False, create=False), name)
+    except UnknownStudyError:
+        return None
+
+
 def _compare(args: argparse.Namespace) -> int:
-    from autotune.search.storage import load_study, open_storage, study_names
+    from autotune.search.storage import load_study, open_storage
     from dashboards import crowd, report
     from dashboards.extract import Empty
 
     if not args.no_spread and args.spread_runs < 2:
         raise ConfigError(f"--spread-runs: need at least 2 runs, got {args.spread_runs}")
 
-    storages = open_storage(args.storage, args.study, heartbeat=False)
+    storages = open_storage(args.storage, args.study, heartbeat=False, create=False)
     automated = load_study(storages, args.study)
     if args.crowd:
-        crowd_storages = open_storage(args.storage, args.crowd, heartbeat=False)
+        crowd_storages = open_storage(args.storage, args.crowd, heartbeat=False, create=False)
         crowd_study = load_study(crowd_storages, args.crowd)
     else:
-        crowd_storages = open_storage(args.storage, crowd.CROWD_STUDY, heartbeat=False)
-        has = crowd.CROWD_STUDY in study_names(crowd_storages)
-        crowd_study = crowd.crowd_study(crowd_storages.storage if has else None)
+        stored = _stored_study(args.storage, crowd.CROWD_STUDY)
+        crowd_study = stored if stored is not None else crowd.crowd_study(None)
     replay = None
-    replay_name = args.replay or crowd.REPLAY_STUDY
-    replay_storages = open_storage(args.storage, replay_name, heartbeat=False)
-    if args.replay or replay_name in study_names(replay_storages):
-        replay = load_study(replay_storages, replay_name)
+    if args.replay:
+        replay = load_study(open_storage(args.storage, args.replay, heartbeat=False, create=False), args.replay)
+    else:
+        replay = _stored_study(args.storage, crowd.REPLAY_STUDY)
     spread = Empty("not computed (--no-spread)") if args.no_spread else cached_crowd_spread(args.spread_runs)
     built = report.build_report(automated, crowd_study, replay=replay, spread=spread, seed=args.seed)
     path = report.write_html(built, args.out)

@@ -65,12 +65,9 @@ def _load(args: argparse.Namespace) -> tuple[str, Any, Any]:
     if args.config is not None:
         raise ConfigError("--config: only with --net (a trial's settings come from the study)")
     from autotune.search.records import export_best, export_trial
-    from autotune.search.storage import RUNS_DIR, open_storage
+    from autotune.search.storage import open_storage
 
-    journal = RUNS_DIR / args.study / "journal.log"
-    if not args.storage and not journal.is_file():  # do not create runs/<typo>/ for a study that is not there
-        raise ConfigError(f"study '{args.study}': no embedded storage {journal}; pass --storage URL")
-    storages = open_storage(args.storage, args.study, heartbeat=False, artifacts=args.artifacts)
+    storages = open_storage(args.storage, args.study, heartbeat=False, artifacts=args.artifacts, create=False)
     with tempfile.TemporaryDirectory(prefix="replay-") as tmp:
         if args.trial is None:
             paths = export_best(storages, args.study, tmp)

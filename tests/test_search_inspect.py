@@ -255,3 +255,20 @@ def test_evaluate_trial_bad_input(journal_study, capsys, argv, expect):
     storage, _, _ = journal_study
     code, out, err = run_cli(capsys, "evaluate", *argv, "--storage", storage)
     assert code == 2 and out == "" and err.count("\n") == 1 and expect in err
+
+
+def test_read_only_commands_create_no_storage_for_a_missing_study(tmp_path: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
+    """status/best/dashboard/replay/compare on a study that was never launched: one line, exit 2, no runs/<name>/."""
+    from autotune.cli import main as cli_main
+
+    monkeypatch.chdir(tmp_path)
+    for args in (
+        ["status", "typo"],
+        ["best", "typo"],
+        ["replay", "typo", "--out", "r.html"],
+        ["compare", "typo", "--out", "c.html"],
+    ):
+        assert cli_main(args, owns_process=False) == 2, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "no study 'typo'" in err[0], (args, err)
+    assert not (tmp_path / "runs").exists()

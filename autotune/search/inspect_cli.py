@@ -69,7 +69,7 @@ def add_parser(subparsers: Any) -> None:
 def _open(args: argparse.Namespace, study: str) -> Any:
     from autotune.search.storage import open_storage
 
-    return open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts)
+    return open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts, create=False)
 
 
 def _status(args: argparse.Namespace) -> int:

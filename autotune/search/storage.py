@@ -212,7 +212,12 @@ def _root_cause(exc: BaseException) -> BaseException:
 
 
 def open_storage(
-    storage: str, study_name: str, *, heartbeat: bool = True, artifacts: str | Path | None = None
+    storage: str,
+    study_name: str,
+    *,
+    heartbeat: bool = True,
+    artifacts: str | Path | None = None,
+    create: bool = True,
 ) -> Storages:
     """Open the study storage named by ``storage`` (``--storage``) and its artifact store.
 
@@ -221,7 +226,8 @@ def open_storage(
     trials record heartbeats every ``HEARTBEAT_INTERVAL_S`` and count as failed after
     ``GRACE_PERIOD_S`` of silence — read-only commands pass False. Raises ``StorageError`` (one
     line) for a storage that cannot be opened; an RDB server is contacted here, so an unreachable
-    one fails now, within ``CONNECT_TIMEOUT_S``.
+    one fails now, within ``CONNECT_TIMEOUT_S``. ``create=False`` (read-only commands): a journal
+    file that does not exist is an ``UnknownStudyError`` instead of a new, empty ``runs/<study>/``.
     """
     storage = storage.strip()
     shown = display_url(storage)
@@ -229,6 +235,7 @@ def open_storage(
     if not storage:
         run_dir = _study_dir(study_name, "the embedded storage")
         journal = run_dir / "journal.log"
+        _require_journal(journal, study_name, create)
         opened: BaseStorage = _open_journal(journal, str(journal))
         store, art_dir = _artifact_store(art_dir or run_dir / "artifacts", str(journal))
         return Storages(opened, store, art_dir, str(journal), "journal")
@@ -242,9 +249,18 @@ def open_storage(
             f"storage '{storage}': expected a journal file (*.log or *.journal) or an SQLAlchemy URL "
             "(sqlite:///study.db, postgresql://user@host/db); leave it empty for runs/<study>/journal.log"
         )
+    _require_journal(path, study_name, create)
     opened = _open_journal(path, storage)
     store, art_dir = _artifact_store(art_dir or path.parent / "artifacts", storage)
     return Storages(opened, store, art_dir, storage, "journal")
+
+
+def _require_journal(path: Path, study_name: str, create: bool) -> None:
+    if not create and not path.is_file():
+        raise UnknownStudyError(
+            f"storage '{path}': no study '{study_name}' (the journal file does not exist); "
+            "launch the study first, or pass --storage"
+        )
 
 
 def study_names(storages: Storages) -> list[str]:

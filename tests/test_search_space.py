@@ -68,26 +68,57 @@ def test_every_sampled_config_is_valid(name: str) -> None:
         assert not space.outside(spec, params)
 
 
-def test_sample_coordinates_and_define_by_run() -> None:
+def test_sample_coordinates_and_fixed_shape_layout() -> None:
     spec = load_spec(CONFIGS / "paper.toml")
-    trial = optuna.trial.FixedTrial(
-        {
-            **{d.name: d.low for d in spec.space if d.kind != "categorical" and d.name not in ("n_layers", "neurons")},
-            "one_minus_gamma": 0.1,
-            "n_layers": 2,
-            "neurons_0": 384,
-            "activation_0": "tanh",
-            "neurons_1": 8,
-            "activation_1": "maxout",
-            "neurons_2": 99,  # not asked: n_layers is 2
-        }
-    )
-    params = space.sample(trial, spec)
-    assert "neurons_2" not in params and params["n_layers"] == 2
-    config = space.to_config(spec, params)
-    assert config.hidden == "fc:384:tanh|fc:8:maxout"
-    assert config.gamma == 0.9
+    values: dict[str, Any] = {name: (d.choices[0] if d.kind == "categorical" else d.low)
+                              for name, d in space.dimensions(spec).items()}  # fmt: skip
+    values.update({"one_minus_gamma": 0.1, "n_layers": 2, "neurons_0": 384, "activation_0": "tanh", "neurons_1": 8,
+                   "activation_1": "maxout", "neurons_2": 99, "method": "adagrad",
+                   "learning_steps_burnin_fraction": 0.02, "learning_steps_total_fraction": 0.5})  # fmt: skip
+    params = space.sample(optuna.trial.FixedTrial(values), spec)
+    # fixed shape: every slot is a parameter of every trial, the first n_layers are used
+    assert params["neurons_2"] == 99 and params["n_layers"] == 2 and "neurons_7" in params
+    config = space.to_config(spec, params, budget=90_000)
+    assert config.hidden == "fc:384:tanh|fc:8:maxout" and config.method == "adagrad"
+    assert config.gamma == 0.9 and config.train_iterations == 90_000
+    assert (config.learning_steps_burnin, config.learning_steps_total) == (1_800, 45_000)
     assert config.start_learn_threshold == 100 and config.experience_size == 1000
+    assert space.to_config(spec, params).train_iterations == spec.ladder[-1]  # default: the top of the ladder
+
+
+def _enumerate(spec: StudySpec) -> set[str]:
+    """Every configuration a small space can reach (all params enumerated), as canonical JSON."""
+    import itertools
+    import json
+
+    dims = space.dimensions(spec)
+    grids = [list(d.choices) if d.kind == "categorical" else list(range(int(d.low), int(d.high) + 1))  # type: ignore
+             for d in dims.values()]  # fmt: skip
+    out = set()
+    for combo in itertools.product(*grids):
+        config = space.to_config(spec, dict(zip(dims, combo, strict=True)))
+        out.add(json.dumps(config.to_mapping(), sort_keys=True, default=str))
+    return out
+
+
+def test_fixed_shape_reaches_the_define_by_run_set() -> None:
+    """The fixed-shape layout reaches exactly the configurations the define-by-run one did."""
+    import json
+
+    spec = parse_spec({"study": {"name": "d", "n_trials": 1}, "space": {
+        "lanes_side": {"low": 0, "high": 1}, "n_layers": {"low": 0, "high": 2},
+        "neurons": {"low": 2, "high": 4}, "activation": {"choices": ["relu", "tanh"]}}})  # fmt: skip
+    reached = _enumerate(spec)
+    define_by_run = set()  # n_layers, then neurons_i / activation_i for i < n_layers only
+    for lanes in (0, 1):
+        for n in (0, 1, 2):
+            import itertools
+
+            for layers in itertools.product(itertools.product((2, 3, 4), ("relu", "tanh")), repeat=n):
+                hidden = "|".join(f"fc:{k}:{a}" for k, a in layers)
+                config = space.build_config("v2", {"lanes_side": lanes, "layers": hidden}, cap_start=True)
+                define_by_run.add(json.dumps(config.to_mapping(), sort_keys=True, default=str))
+    assert reached == define_by_run and len(reached) == 2 * (1 + 6 + 36)
 
 
 def test_start_threshold_capped_below_experience() -> None:
@@ -99,19 +130,25 @@ def test_start_threshold_capped_below_experience() -> None:
 
 
 def test_round_trip() -> None:
-    spec = load_spec(CONFIGS / "paper.toml")
-    for params in _random_params(spec, 100, seed=2):
-        config = space.to_config(spec, params)
-        back = space.encode(spec, config)
-        assert space.to_config(spec, back) == config
-        assert back.keys() == params.keys()
-        for key, value in params.items():
-            if key == "one_minus_gamma":
-                assert math.isclose(back[key], value, rel_tol=0.0, abs_tol=1e-15), key  # gamma has 15 digits
-            elif key == "start_learn_threshold":
-                assert back[key] == min(value, params["experience_size"] - 1)
-            else:
-                assert back[key] == value, key
+    for name in ("paper.toml", "smoke.toml"):
+        spec = load_spec(CONFIGS / name)
+        for params in _random_params(spec, 100, seed=2):
+            config = space.to_config(spec, params)
+            back = space.encode(spec, config)
+            assert space.to_config(spec, back) == config
+            assert back.keys() == params.keys()
+            n = params.get("n_layers", 0)
+            for key, value in params.items():
+                if key == "one_minus_gamma":
+                    assert math.isclose(back[key], value, rel_tol=0.0, abs_tol=1e-15), key  # gamma has 15 digits
+                elif key == "start_learn_threshold":
+                    assert back[key] == config.start_learn_threshold  # capped below the memory and the budget
+                elif key.endswith("_fraction"):
+                    assert math.isclose(back[key], value, rel_tol=1e-4, abs_tol=2 / config.train_iterations), key
+                elif key.startswith(("neurons_", "activation_")) and int(key.rsplit("_", 1)[1]) >= n:
+                    continue  # an unused slot of the fixed shape: encode writes the range's first value
+                else:
+                    assert back[key] == value, key
 
 
 def test_encode_crowd_names() -> None:
@@ -123,9 +160,11 @@ def test_encode_crowd_names() -> None:
     params = space.encode(spec, gsurma)
     assert params["one_minus_gamma"] == 0.1
     assert (params["n_layers"], params["neurons_0"], params["activation_0"]) == (1, 384, "tanh")
-    assert params["other_agents"] == 10 and params["train_iterations"] == 50000
+    assert params["other_agents"] == 10 and params["learning_steps_total_fraction"] == 10000 / 50000
+    assert params["neurons_1"] == 2 and params["activation_1"] == "relu"  # unused slots: the ranges' first values
     assert space.outside(spec, params) == []
-    assert space.to_config(spec, params) == gsurma
+    at = space.to_config(spec, params, budget=50_000)  # the ladder at the crowd's own length: the crowd's settings
+    assert at == gsurma.replace(start_learn_threshold=min(gsurma.start_learn_threshold, 12_500))
     svm = gsurma.replace(layers="fc:10:relu|svm:10")
     with pytest.raises(SpecError, match="hidden layer 1 'svm:10'"):
         space.encode(spec, svm)

@@ -48,13 +48,18 @@ def test_shipped_configs_load(name: str) -> None:
     assert again == spec
 
 
-def test_paper_toml_is_the_default_space() -> None:
+def test_paper_toml_is_the_paper_space() -> None:
     spec = load_spec(CONFIGS / "paper.toml")
-    default = parse_spec({"study": {"name": "d", "n_trials": 1}, "space": space.DEFAULT_SPACE})
-    assert spec.space == default.space
+    paper = parse_spec({"study": {"name": "d", "n_trials": 1}, "ladder": {"rungs": list(spec.ladder)},
+                        "space": space.PAPER_SPACE})  # fmt: skip
+    assert spec.space == paper.space
     assert spec.fixed == ()
-    table1 = set(PARAMS) - {"l1_decay"}
+    # every Table-1 setting but the ladder's (training length, ε's schedule in iterations) and l1 (no effect on fc)
+    table1 = set(PARAMS) - {"l1_decay", "train_iterations", "learning_steps_total", "learning_steps_burnin"}
     assert {d.name for d in spec.space} == table1
+    assert spec.ladder == (10_000, 30_000, 90_000, 270_000) and spec.study.pruner == "sha"
+    classic = parse_spec({"study": {"name": "d", "n_trials": 1}, "space": space.DEFAULT_SPACE})
+    assert not classic.ladder  # the crowd study's space: the same settings in their absolute form
 
 
 def test_defaults(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ after the JSON text round trip that turns NaN into 0, the original's ``Math.rand
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from autotune.convnet.netjson import NetSettings, dumps_net, loads_net
@@ -59,8 +60,12 @@ def evaluate_official(
     other_agents: int | None = None,
     engine_load: bool = True,
     gauss_cache: int = 0,
+    progress: Callable[[int, int], None] | None = None,
 ) -> EvalResult:
     """Exact official-protocol evaluation of a trained net (after the JSON text round trip).
+
+    ``progress(frames_done, total)`` is called between chunks of runs (wall-time limits: it may raise
+    to abandon the evaluation; the scores do not depend on it).
 
     ``seed`` is the protocol's ``Math.random`` seed (default: the protocol's own, 1 for v2-official
     and 2000 for v1-original; learner_scores*.json use 100 + training seed, and in v1 no engine-load
@@ -77,4 +82,5 @@ def evaluate_official(
         other_agents=other_agents,
         engine_load=engine_load,
         gauss_cache=gauss_cache,
+        progress=progress,
     )

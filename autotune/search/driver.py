@@ -18,6 +18,18 @@ heartbeat-enabled RDB storage, a ``autotune:heartbeat`` system attr otherwise). 
 the RUNNING trials whose driver is dead (same host: by pid; another host: heartbeat older than
 the grace period) and retries them; nothing a dead driver finished is touched.
 
+Budget ladder (a spec with [ladder]): a trial climbs rungs of fresh, complete trainings
+(``autotune.search.ladder``), each scored officially and reported at step B_r/B_0; its top rung is
+the highest whose predicted cost fits the study's cap (``autotune.search.cost``). Draws whose
+cheapest rung is over the cap are refused and redrawn inside the sampler (``autotune.search.gate``):
+they never become trials. The study's deadline travels with every task, so at ``timeout_s`` running
+trials stop (PRUNED, the finished rungs kept) and ``launch`` exits.
+
+Warm start: the crowd prior (``warm_configs``, enqueued once, every one trained and measured) and
+another study's measured trials copied into the sampler's history. Seed race: the last
+``race_fraction`` of ``timeout_s`` retrains the best configurations with fresh seeds
+(``autotune.search.racing``), each run an ordinary trial with ``race_of`` / ``race_seed``.
+
 Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
 (``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express
 (trainer method, l1 decay, …) included — and is scored with the official protocol of that
@@ -46,7 +58,10 @@ from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
-from autotune.search import space
+from autotune.search import racing, space
+from autotune.search.cost import CostModel, Observation, Plan, features, plan
+from autotune.search.gate import CostGatedSampler, distributions
+from autotune.search.ladder import Ladder, rung_config
 from autotune.search.objective import (
     COMPLETE,
     FAILED,
@@ -56,18 +71,37 @@ from autotune.search.objective import (
     process_alive,
     process_start,
 )
-from autotune.search.spec import StudySpec
+from autotune.search.spec import SpecError, StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
 from sim.config import ConfigError
 
 __all__ = [
     "Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "OWNER_ATTR", "CONFIG_ATTR",
+    "WarmConfig", "clip_params",
 ]  # fmt: skip
 
 OWNER_ATTR = "autotune:driver"  # system attr: {"host", "pid", "start"} of the driver running the trial
 BEAT_ATTR = "autotune:heartbeat"  # system attr: time.time() of the driver's latest heartbeat for the trial
 CONFIG_ATTR = "config"  # user attr an enqueued trial may carry: the full TrainConfig mapping it trains
 ENQUEUED_ATTR = "autotune:enqueued"  # system attr: the user attr keys a trial was enqueued with (kept by retries)
+RACE_OF = "race_of"  # user attr: the trial whose configuration this race run retrains with a fresh seed
+RACE_SEED = "race_seed"  # user attr: the race's fresh-seed index of the run
+RACE_FIELD = "race_field"  # study user attr: the race's entrants (trial numbers, best first), frozen at its start
+WARM_ATTR = "warm_start"  # user attr: where an enqueued warm-start trial comes from ("crowd:<id>")
+COPIED_ATTR = "copied_from"  # user attr: "<study>:<number>" of a trial copied in by --warm-start STUDY
+LADDER_TOP = "ladder_top"  # user attr: highest rung index an enqueued trial may climb (crowd: its trainIterations)
+PREDICTED_ATTR = "predicted_cost_s"  # user attr: the cost model's prediction, stored before the trial trains
+REFUSED_ATTR = "refused_draws"  # user attr: draws the cost gate refused before this trial's
+
+
+@dataclasses.dataclass(frozen=True)
+class WarmConfig:
+    """A configuration of the crowd prior: where it comes from and the settings to map into the space."""
+
+    source: str
+    """Its provenance (``crowd:<submission id>``)."""
+    config: TrainConfig
+    """Its full settings (trainIterations picks its top rung)."""
 
 
 @dataclasses.dataclass
@@ -83,7 +117,7 @@ class StudyCounts:
     failed: int = 0
     running: int = 0
     retries: int = 0
-    """Retries (trials with ``retry_of``, any state): each stands for a failed trial whose chain goes on."""
+    """Retries and race runs (``retry_of`` / ``race_of``, any state): trials that use no budget."""
     best_value: float | None = None
     best_number: int | None = None
     elapsed_s: float = 0.0
@@ -103,21 +137,33 @@ def trial_seed(study_seed: int, number: int) -> int:
     return int(np.random.SeedSequence([int(study_seed), int(number)]).generate_state(1, np.uint32)[0] >> 1)
 
 
-def make_sampler(spec: StudySpec, seed: int) -> optuna.samplers.BaseSampler:
-    """The spec's sampler, seeded; TPE multivariate, grouped (define-by-run layout), constant liar in parallel."""
+def make_sampler(
+    spec: StudySpec, seed: int, price: Callable[[dict[str, Any]], float | None] | None = None
+) -> optuna.samplers.BaseSampler:
+    """The spec's sampler, seeded, its startup count ``[study] sampler_startup_trials``; TPE multivariate with
+    constant liar in parallel. With ``price`` it sits behind the cost gate (``gate.CostGatedSampler``)."""
     name = spec.study.sampler
     needs = {"cmaes": "cmaes", "gp": "scipy"}.get(name)
     if needs is not None and importlib.util.find_spec(needs) is None:
         raise ConfigError(f"{spec.source}: [study] sampler: '{name}' needs the '{needs}' package; pip install {needs}")
+    base = _base_sampler(spec, seed, name)
+    if price is None:
+        return base
+    return CostGatedSampler(base, spec, price, spec.study.cost_cap_s, seed)
+
+
+def _base_sampler(spec: StudySpec, seed: int, name: str) -> optuna.samplers.BaseSampler:
     s = optuna.samplers
+    startup = spec.study.sampler_startup_trials
     if name == "tpe":
         return s.TPESampler(
-            seed=seed, multivariate=True, group=True, constant_liar=spec.resources.workers > 1
+            seed=seed, n_startup_trials=startup, multivariate=True, group=True,
+            constant_liar=spec.resources.workers > 1,
         )  # fmt: skip
     if name == "cmaes":
-        return s.CmaEsSampler(seed=seed, warn_independent_sampling=False)
+        return s.CmaEsSampler(seed=seed, n_startup_trials=startup, warn_independent_sampling=False)
     if name == "gp":
-        return s.GPSampler(seed=seed, warn_independent_sampling=False)
+        return s.GPSampler(seed=seed, n_startup_trials=startup, warn_independent_sampling=False)
     if name == "random":
         return s.RandomSampler(seed=seed)
     if name == "qmc":
@@ -130,6 +176,19 @@ def make_pruner(spec: StudySpec) -> optuna.pruners.BasePruner:
     e = spec.evaluation
     p = optuna.pruners
     name = spec.study.pruner
+    if spec.ladder:  # reports at steps B_r / B_0: successive halving promotes exactly at the ladder
+        ladder = Ladder(spec.ladder)
+        eta = ladder.reduction_factor
+        if name == "median":
+            return p.MedianPruner(n_startup_trials=e.n_startup_trials, n_warmup_steps=0)
+        if name == "hyperband":
+            return p.HyperbandPruner(min_resource=1, max_resource=ladder.steps[-1], reduction_factor=eta)
+        if name == "sha":
+            return p.SuccessiveHalvingPruner(min_resource=1, reduction_factor=eta, min_early_stopping_rate=0)
+        if name == "none":
+            return p.NopPruner()
+        raise ConfigError(f"{spec.source}: [study] pruner: '{name}' does not fit a budget ladder; use sha, "
+                          "hyperband, median or none")  # fmt: skip
     if name == "median":
         return p.MedianPruner(n_startup_trials=e.n_startup_trials, n_warmup_steps=e.n_warmup_steps)
     if name == "hyperband":
@@ -168,6 +227,8 @@ class _Running:
     started: float = dataclasses.field(default_factory=time.perf_counter)
     killed: str = ""
     """Why the driver killed the worker (a trial past its wall-time limit that stopped answering)."""
+    silent: bool = False
+    """A race run: its score is not reported to the pruner (it is not a rung of the ladder)."""
 
 
 class Driver:
@@ -181,8 +242,18 @@ class Driver:
         address: str | None = None,
         progress: Progress | None = None,
         state_dir: Path | None = None,
+        warm_configs: tuple[WarmConfig, ...] = (),
     ) -> None:
         self.spec = spec
+        self.warm_configs = warm_configs
+        self.cost_model = CostModel.prior()
+        self._fitted_on = -1
+        self._race_over = False
+        self._wall0 = 0.0
+        self.warm_notes: list[str] = []
+        """What the warm start did (crowd settings enqueued, clipped or skipped; trials copied)."""
+        self.on_warm_start: Callable[[list[str]], None] | None = None
+        """Called with ``warm_notes`` once the warm start is done (the CLI prints them)."""
         self.storages = storages
         self.address = address
         self.progress = progress
@@ -212,10 +283,11 @@ class Driver:
         n_before = 0
         if previous:
             n_before = len(storage.get_all_trials(previous[0]._study_id, deepcopy=False))
+            self._refuse_changed_space(previous[0].user_attrs.get("spec"))
         study = optuna.create_study(
             study_name=name,
             storage=storage,
-            sampler=make_sampler(self.spec, self.spec.study.seed + n_before),  # a resumed run draws anew
+            sampler=make_sampler(self.spec, self.spec.study.seed + n_before, self._price),  # a resumed run draws anew
             pruner=make_pruner(self.spec),
             direction="maximize",
             load_if_exists=True,
@@ -225,6 +297,178 @@ class Driver:
         self.recovered = self._fail_orphans(study)
         self._refresh_counts()
         return study
+
+    def _refuse_changed_space(self, stored: Any) -> None:
+        """A study resumed with another space (or ladder) would mix incomparable trials: one line, no change."""
+        if not isinstance(stored, dict):
+            return
+        new = self.spec.to_dict()
+        for key, label in (("space", "[space]"), ("ladder", "[ladder]")):
+            old_t, new_t = stored.get(key) or {}, new.get(key) or {}
+            if old_t == new_t:
+                continue
+            names = sorted(set(old_t) | set(new_t))
+            first = next(n for n in names if old_t.get(n) != new_t.get(n))
+            raise SpecError(
+                f"{self.spec.source}: {label} {first}: the study '{self.spec.study.name}' was created with "
+                f"{old_t.get(first, 'no such entry')!r}, the spec now says {new_t.get(first, 'nothing')!r}; "
+                "resume it with its original spec or start a new study with --study-name"
+            )
+
+    # -- cost ------------------------------------------------------------------------------
+    def _rung_configs(self, params: dict[str, Any]) -> list[TrainConfig]:
+        """The configuration of every rung of the ladder (one element without a ladder)."""
+        if not self.spec.ladder:
+            return [space.to_config(self.spec, params)]
+        return [space.to_config(self.spec, params, budget=b) for b in self.spec.ladder]
+
+    def _price(self, params: dict[str, Any]) -> float | None:
+        """Predicted seconds of a draw's cheapest rung (the cost gate's question); None: not buildable."""
+        try:
+            config = (space.to_config(self.spec, params, budget=self.spec.ladder[0]) if self.spec.ladder
+                      else space.to_config(self.spec, params))  # fmt: skip
+        except ConfigError:
+            return None
+        return self._model().predict(config)
+
+    def _model(self) -> CostModel:
+        """The cost model refitted to the study's finished rungs (when their number changed)."""
+        if self.study is None:
+            return self.cost_model
+        trials = self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED))
+        if len(trials) == self._fitted_on:
+            return self.cost_model
+        obs = []
+        for t in trials:
+            cfg = t.user_attrs.get(CONFIG_ATTR)
+            if not isinstance(cfg, dict) or COPIED_ATTR in t.user_attrs:
+                continue
+            try:
+                top = TrainConfig.from_mapping(cfg)
+            except ConfigError:
+                continue
+            for rung in t.user_attrs.get("rungs") or ():
+                seconds = rung.get("seconds")
+                if isinstance(seconds, (int, float)):
+                    obs.append(Observation(tuple(features(rung_config(top, int(rung["budget"])))), float(seconds)))
+            if not t.user_attrs.get("rungs") and t.state == TrialState.COMPLETE:
+                wall = t.user_attrs.get("trial_wall_seconds")
+                if isinstance(wall, (int, float)):
+                    obs.append(Observation(tuple(features(top)), float(wall)))
+        self.cost_model = CostModel.prior().fit(obs)
+        self._fitted_on = len(trials)
+        return self.cost_model
+
+    # -- warm start ------------------------------------------------------------------------
+    def _warm_start(self) -> None:
+        """Enqueue the crowd prior and copy another study's measured trials, once per study."""
+        assert self.study is not None
+        attrs = self.study.user_attrs
+        if self.spec.warm_start.crowd and self.warm_configs and "warm_start:crowd" not in attrs:
+            n = 0
+            ladder = Ladder(self.spec.ladder) if self.spec.ladder else None
+            for w in self.warm_configs:
+                try:
+                    params = space.encode(self.spec, w.config)
+                except ConfigError as exc:
+                    self.warm_notes.append(f"{w.source}: skipped ({exc})")
+                    continue
+                params, clipped = clip_params(self.spec, params)
+                user: dict[str, Any] = {WARM_ATTR: w.source}
+                if clipped:
+                    user["warm_start_clipped"] = clipped
+                    self.warm_notes.append(f"{w.source}: clipped into the space: {'; '.join(clipped)}")
+                if ladder is not None:
+                    user[LADDER_TOP] = ladder.top_for(w.config.train_iterations)
+                self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
+                n += 1
+            self.study.set_user_attr("warm_start:crowd", n)
+            self.warm_notes.insert(0, f"crowd prior: {n} settings enqueued (each trained and measured)")
+        source = self.spec.warm_start.study
+        if source and f"warm_start:{source}" not in attrs:
+            copied = self._copy_trials(source)
+            self.study.set_user_attr(f"warm_start:{source}", copied)
+            self.warm_notes.append(f"{source}: {copied} measured trials copied into the sampler's history")
+
+    def _copy_trials(self, source: str) -> int:
+        """Add ``source``'s COMPLETE trials whose params fit this space as history (no retraining)."""
+        assert self.study is not None
+        try:
+            other = optuna.load_study(study_name=source, storage=self.storages.storage)
+        except KeyError:
+            raise SpecError(f"--warm-start {source}: no such study in this storage; check the name "
+                            "(autotune status lists them)") from None  # fmt: skip
+        dists = distributions(self.spec)
+        copied = 0
+        for t in other.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
+            if set(t.params) != set(dists) or t.value is None:
+                continue
+            if clip_params(self.spec, dict(t.params))[1]:
+                continue  # outside this space: not this space's history
+            user = {k: v for k, v in t.user_attrs.items() if k in (CONFIG_ATTR, "seed", "rungs")}
+            user[COPIED_ATTR] = f"{source}:{t.number}"
+            self.study.add_trial(optuna.trial.create_trial(
+                params=dict(t.params), distributions=dists, value=t.value, user_attrs=user,
+                intermediate_values=dict(t.intermediate_values),
+            ))  # fmt: skip
+            copied += 1
+        return copied
+
+    # -- the seed race ----------------------------------------------------------------------
+    def _race_window(self) -> bool:
+        """True once the study is in its racing part (last race_fraction of timeout_s, or the budget spent)."""
+        st = self.spec.study
+        if self._race_over or st.timeout_s is None or st.race_fraction <= 0:
+            return False
+        elapsed = time.perf_counter() - self._t0
+        if elapsed >= (1.0 - st.race_fraction) * st.timeout_s:
+            return True
+        self._refresh_counts()
+        return st.n_trials is not None and self.counts.started >= st.n_trials
+
+    def _race_state(self) -> tuple[list[int], dict[tuple[int, int], float | None], set[tuple[int, int]]]:
+        assert self.study is not None
+        field = self.study.user_attrs.get(RACE_FIELD)
+        if field is None:
+            candidates = [
+                (t.number, float(t.value), t.user_attrs[CONFIG_ATTR])
+                for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+                if t.value is not None and isinstance(t.user_attrs.get(CONFIG_ATTR), dict) and _original(t)
+            ]  # fmt: skip
+            field = [e.number for e in racing.entrants(candidates, self.spec.study.race_configs)]
+            self.study.set_user_attr(RACE_FIELD, field)
+        results: dict[tuple[int, int], float | None] = {}
+        launched: set[tuple[int, int]] = set()
+        for t in self.study.get_trials(deepcopy=False):
+            if RACE_OF not in t.user_attrs:
+                continue
+            key = (int(t.user_attrs[RACE_OF]), int(t.user_attrs[RACE_SEED]))
+            if t.state == TrialState.FAIL and t.user_attrs.get("retryable"):
+                continue  # its retry (same race_of / race_seed, carried by the enqueued attrs) stands for it
+            launched.add(key)
+            if t.state == TrialState.COMPLETE:
+                results[key] = float(t.value) if t.value is not None else None
+            elif t.state in (TrialState.PRUNED, TrialState.FAIL):
+                results[key] = None
+        return list(field), results, launched
+
+    def _launch_race(self, slot: int) -> bool:
+        """Start the next race run on ``slot``; False when none can start now (round running, or race over)."""
+        assert self.study is not None
+        field, results, launched = self._race_state()
+        runs, over = racing.next_runs(field, results, launched, self.spec.study.race_seeds)
+        if over:
+            self._race_over = True
+            return False
+        if not runs:
+            return False
+        run = runs[0]
+        source = self.study.get_trials(deepcopy=False)[run.race_of]
+        seed = racing.race_seed(self.spec.study.seed, run.seed_index)
+        self.study.enqueue_trial(dict(source.params), user_attrs={
+            CONFIG_ATTR: source.user_attrs[CONFIG_ATTR], "seed": seed, RACE_OF: run.race_of, RACE_SEED: run.seed_index,
+        })  # fmt: skip
+        return self._launch_next(slot)
 
     def _fail_orphans(self, study: optuna.Study) -> list[int]:
         storage = self.storages.storage
@@ -280,9 +524,9 @@ class Driver:
     def _refresh_counts(self) -> None:
         assert self.study is not None
         c = self.counts
-        trials = self.study.get_trials(deepcopy=False)
-        c.started = sum(1 for t in trials if "retry_of" not in t.user_attrs and t.state != TrialState.WAITING)
-        c.retries = sum(1 for t in trials if "retry_of" in t.user_attrs)
+        trials = [t for t in self.study.get_trials(deepcopy=False) if COPIED_ATTR not in t.user_attrs]
+        c.started = sum(1 for t in trials if _original(t) and t.state != TrialState.WAITING)
+        c.retries = sum(1 for t in trials if "retry_of" in t.user_attrs or RACE_OF in t.user_attrs)
         c.complete = sum(1 for t in trials if t.state == TrialState.COMPLETE)
         c.pruned = sum(1 for t in trials if t.state == TrialState.PRUNED)
         c.failed = sum(1 for t in trials if t.state == TrialState.FAIL)
@@ -306,6 +550,10 @@ class Driver:
         if self.study is None:
             self.open_study()
         self._t0 = time.perf_counter()
+        self._wall0 = time.time()
+        self._warm_start()
+        if self.warm_notes and self.on_warm_start is not None:
+            self.on_warm_start(self.warm_notes)
         self._enqueue_retries()
         if not self._launch_possible():  # the budget is spent already: no Ray at all
             self._notify()
@@ -338,6 +586,9 @@ class Driver:
         while True:
             if not self._out_of_time():
                 for slot in self.pool.idle_slots(set(self._running)):
+                    if self._race_window():
+                        if self._launch_race(slot) or not self._race_over:
+                            continue  # started a race run, or a round is still running: keep the slot for it
                     if not self._launch_next(slot):
                         break
             if not self._running:
@@ -373,6 +624,11 @@ class Driver:
         assert self.study is not None
         if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
             return True
+        if self._race_window():
+            field, results, launched = self._race_state()
+            if not racing.next_runs(field, results, launched, self.spec.study.race_seeds)[1]:
+                return True
+            self._race_over = True
         self._refresh_counts()
         budget = self.spec.study.n_trials
         return budget is None or self.counts.started < budget
@@ -398,24 +654,46 @@ class Driver:
             seed = trial_seed(self.spec.study.seed, trial.number)
             trial.set_user_attr("seed", seed)
         full = trial.user_attrs.get(CONFIG_ATTR)  # an enqueued full config (crowd replay) wins over the params
+        race = RACE_OF in trial.user_attrs
         try:
             params = space.sample(trial, self.spec)
-            config = TrainConfig.from_mapping(full) if full is not None else space.to_config(self.spec, params)
+            if full is not None:
+                config = TrainConfig.from_mapping(full)
+                rungs: tuple[int, ...] = (config.train_iterations,) if race and self.spec.ladder else ()
+                predicted: Plan | None = Plan((config.train_iterations,), (self._model().predict(config),))
+            else:
+                configs = self._rung_configs(params)
+                top = trial.user_attrs.get(LADDER_TOP)
+                predicted = plan(configs, self._model(), self.spec.study.cost_cap_s, top)
+                if predicted is None:
+                    cheapest = self._model().predict(configs[0])
+                    raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over the "
+                                   f"study's cost cap of {self.spec.study.cost_cap_s:,.0f} s")  # fmt: skip
+                config = configs[len(predicted.budgets) - 1]
+                rungs = predicted.budgets if self.spec.ladder else ()
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study
-            trial.set_user_attr("cause", f"invalid configuration: {exc}")
+            cause = str(exc) if isinstance(exc, _Refused) else f"invalid configuration: {exc}"
+            trial.set_user_attr("cause", cause)
             self.study.tell(trial, state=TrialState.FAIL)
             self._notify()
             return True
+        assert predicted is not None
+        trial.set_user_attr(PREDICTED_ATTR, predicted.total_s)
+        trial.set_user_attr("predicted_rung_s", list(predicted.costs))
+        if isinstance(self.study.sampler, CostGatedSampler):
+            trial.set_user_attr(REFUSED_ATTR, self.study.sampler.refused(trial.number))
         e = self.spec.evaluation
+        st = self.spec.study
         task = TrialTask(
             number=trial.number, config=config.to_mapping(), seed=int(seed), report_points=e.report_points,
             quick_runs=e.quick_runs, quick_frames=e.quick_frames,
-            final_protocol="" if full is not None else e.final_protocol,  # '': the config's ruleset's official
-            timeout_s=self.spec.study.trial_timeout_s,
+            final_protocol="" if full is not None and not race else e.final_protocol,  # '': its ruleset's official
+            timeout_s=st.trial_timeout_s, rungs=rungs,
+            deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,
         )  # fmt: skip
         trial.set_user_attr("worker", self.pool.worker_of(slot))
         trial.set_user_attr("ray_node", self.pool.node_of(slot))
-        self._running[slot] = _Running(trial, slot, task)
+        self._running[slot] = _Running(trial, slot, task, silent=race)
         self.pool.submit(slot, task)
         self._notify()
         return True
@@ -426,6 +704,9 @@ class Driver:
         if event.kind == "ready" or run is None:
             return
         if event.kind == "report":
+            if run.silent:
+                self.pool.answer(event.slot, False)
+                return
             run.trial.report(event.score, step=event.step)
             prune = run.trial.should_prune()
             self.pool.answer(event.slot, prune)
@@ -444,6 +725,17 @@ class Driver:
         assert self.study is not None
         for key, value in outcome.attrs.items():
             trial.set_user_attr(key, _jsonable(value))
+        if outcome.rung_nets:  # every finished rung's net, pruned trials included
+            ids = {}
+            with tempfile.TemporaryDirectory() as tmp:
+                for budget, text in sorted(outcome.rung_nets.items()):
+                    path = Path(tmp) / f"net_rung_{budget}.json"
+                    path.write_text(text)
+                    ids[str(budget)] = optuna.artifacts.upload_artifact(
+                        artifact_store=self.storages.artifacts, file_path=str(path), study_or_trial=trial,
+                        mimetype="application/json",
+                    )  # fmt: skip
+            trial.set_user_attr("artifact_rung_nets", ids)
         if outcome.state == COMPLETE:
             with tempfile.TemporaryDirectory() as tmp:
                 for key, name, text in (("artifact_net_json", "net.json", outcome.net_json),
@@ -491,6 +783,41 @@ class Driver:
         self._last_beat = time.perf_counter()
         for run in self._running.values():
             self._beat(run.trial)
+
+
+class _Refused(Exception):
+    """An enqueued configuration whose cheapest rung is over the cost cap (it is not trained)."""
+
+
+def _original(t: FrozenTrial) -> bool:
+    """A trial that uses budget: not a retry, not a race run, not copied history."""
+    return not any(k in t.user_attrs for k in ("retry_of", RACE_OF, COPIED_ATTR))
+
+
+def clip_params(spec: StudySpec, params: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """``params`` moved inside the space's ranges and choices, and one line per value that moved."""
+    out = dict(params)
+    notes = []
+    for name, d in space.dimensions(spec).items():
+        if name not in out:
+            continue
+        v = out[name]
+        if d.kind == "categorical":
+            if v not in d.choices:
+                out[name] = d.choices[0]
+                notes.append(f"{name} {v!r} → {d.choices[0]!r} (not among the choices)")
+            continue
+        assert d.low is not None and d.high is not None
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            c: Any = min(max(v, d.low), d.high)
+            if d.kind == "int":
+                c = int(round(c))
+            elif d.step:
+                c = d.low + round((c - d.low) / d.step) * d.step
+            if c != v:
+                out[name] = c
+                notes.append(f"{name} {v!r} → {c!r}")
+    return out, notes
 
 
 def _jsonable(x: Any) -> Any:

@@ -84,20 +84,34 @@ def _status(args: argparse.Namespace) -> int:
 
 
 def _best(args: argparse.Namespace) -> int:
-    from autotune.search.records import best_trial_record, export_best
+    from autotune.search.records import best_trial_record, export_best, race_summary
 
     storages = _open(args, args.study)
     record = best_trial_record(storages, args.study)
+    race = race_summary(storages, args.study)
     paths = export_best(storages, args.study, args.export) if args.export else {}
     if args.json:
         record["exported"] = {name: str(path) for name, path in paths.items()}
+        record["race"] = race
         print(json.dumps(record))
         return 0
     print(
-        f"best trial {record['number']} of {args.study}: {record['value']:.2f} mph "
+        f"best single net: trial {record['number']} of {args.study}: {record['value']:.2f} mph "
         f"({record.get('official_protocol', 'official')}), seed {record.get('seed')}, "
         f"{record.get('param_count', '?')} parameters"
     )
+    if race is not None and race["winner"] is not None:
+        w = race["winner"]
+        sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""
+        print(
+            f"best configuration by mean over fresh seeds: trial {w['trial']}'s settings: {w['mean']:.2f}{sd} mph "
+            f"(n = {w['n']} fresh seeds; {w['selecting_value']:.2f} with the seed that selected it)"
+        )
+        for row in race["standings"][1:]:
+            if row["n"]:
+                print(f"  raced: trial {row['trial']}: {row['mean']:.2f} mph over {row['n']} fresh seed(s)")
+    elif race is None:
+        print("best configuration by mean over fresh seeds: no seed race in this study (race_fraction 0 or no time)")
     for key, value in record["params"].items():
         print(f"  {key} = {value}")
     config = record.get("config", {})

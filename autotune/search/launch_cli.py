@@ -1,7 +1,7 @@
 """``autotune launch``: run (or resume) a study of a TOML spec on a local Ray pool or a Ray cluster.
 
     autotune launch CONFIG [--storage URL] [--study-name NAME] [--workers N] [--n-trials N] [--timeout S]
-                           [--address RAY_ADDRESS] [--artifacts DIR] [--quiet]
+                           [--warm-start crowd|STUDY] [--address RAY_ADDRESS] [--artifacts DIR] [--quiet]
 
 Creates the study or resumes it (same name and storage: trials left RUNNING by a dead driver are
 failed and retried, finished ones kept, only the rest of ``n_trials`` runs). A progress bar on
@@ -42,6 +42,9 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument(
         "--timeout", type=float, metavar="S", help="stop starting trials after S seconds ([study] timeout_s)"
     )
+    p.add_argument("--warm-start", metavar="crowd|STUDY", help="crowd: enqueue the shipped crowd settings of the "
+                   "study's engine first (each trained and measured); STUDY: copy that study's measured trials "
+                   "into the sampler's history ([warm_start] in the spec)")  # fmt: skip
     p.add_argument("--address", metavar="RAY_ADDRESS", help="join this Ray cluster (host:port) instead of local Ray")
     p.add_argument(
         "--artifacts", metavar="DIR", help="artifact directory (default: beside the journal / runs/<study>/)"
@@ -59,19 +62,25 @@ def run(args: argparse.Namespace) -> int:
     try:
         spec = load_spec(args.config).with_overrides(
             storage=args.storage, name=args.study_name, workers=args.workers, n_trials=args.n_trials,
-            timeout_s=args.timeout,
+            timeout_s=args.timeout, warm_start=args.warm_start,
         )  # fmt: skip
         storages = open_storage(spec.study.storage, spec.study.name, artifacts=args.artifacts)
         if args.address is not None:
             _check_address(args.address)
-        from autotune.search.driver import Driver, StudyCounts
+        from autotune.search.driver import Driver, StudyCounts, WarmConfig
 
-        driver = Driver(spec, storages, address=args.address)
+        warm: tuple[WarmConfig, ...] = ()
+        if spec.warm_start.crowd:
+            from dashboards.crowd_prior import prior_settings
+
+            warm = tuple(WarmConfig(p.source, p.config) for p in prior_settings(spec.ruleset))
+        driver = Driver(spec, storages, address=args.address, warm_configs=warm)
         driver.open_study()  # create or resume; the sampler is built here (a missing package fails now)
     except ConfigError as exc:
         return fail(str(exc).splitlines()[0])
 
     bar = None if args.quiet else _Bar(spec.study.name, spec.study.n_trials, spec.study.timeout_s)
+    driver.on_warm_start = None if args.quiet else _print_warm_notes
     driver.progress = bar.update if bar else None
     try:
         counts: StudyCounts = driver.run()
@@ -85,6 +94,11 @@ def run(args: argparse.Namespace) -> int:
             bar.close()
     _print_summary(spec.study.name, storages, counts, driver)
     return 0
+
+
+def _print_warm_notes(notes: list[str]) -> None:
+    for line in notes:
+        print(f"warm start: {line}", file=sys.stderr)
 
 
 def _check_address(address: str) -> None:

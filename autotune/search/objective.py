@@ -9,9 +9,10 @@ How a trial ends (``TrialOutcome.state``):
 
 * ``"complete"`` — trained to the end and scored with the ruleset's official protocol (exact; the
   value is the site's median for v2-official, the same statistic for v1-original);
-* ``"pruned"`` — the pruner said so at a report, the net diverged (non-finite Q or loss), or the
-  per-trial wall-time limit passed (checked about every 1 % of training and before the official
-  evaluation); ``cause`` says which;
+* ``"pruned"`` — the pruner said so at a report, the net diverged (non-finite Q or loss), or a
+  wall-time limit passed — the trial's own (``timeout_s``) or the study's (``deadline``), checked
+  about every 1 % of training and between chunks of the official evaluation; ``cause`` says which.
+  A trial stopped by a limit keeps the rungs it finished and never reports a truncated score;
 * ``"failed"`` — the objective raised; ``cause`` holds the traceback. (A worker that dies is the
   driver's business: it never gets to return an outcome.)
 """
@@ -59,6 +60,12 @@ class TrialTask:
     """Protocol of the final score; '' = the ruleset's official one."""
     timeout_s: float | None = None
     """Wall-time limit of the whole trial [s] (training + evaluations); None: none."""
+    rungs: tuple[int, ...] = ()
+    """Budget ladder [iterations] up to the trial's top rung (``autotune.search.ladder``): rung r is a fresh,
+    complete training at rungs[r] from ``seed``, scored officially and reported at step rungs[r] / rungs[0];
+    () = one training at the config's own length with quick scores reported along it."""
+    deadline: float | None = None
+    """The study's end (``time.time()`` epoch seconds): a trial still running then stops, PRUNED; None: none."""
 
 
 @dataclasses.dataclass
@@ -78,6 +85,8 @@ class TrialOutcome:
     """convnetjs Net JSON text of the trained net (complete trials)."""
     net_js: str | None = None
     """A net.js for the DeepTraffic page with the weights (complete trials)."""
+    rung_nets: dict[int, str] = dataclasses.field(default_factory=dict)
+    """convnetjs Net JSON of every finished rung, by budget (ladder trials; kept when pruned too)."""
     cpu_seconds: float = 0.0
     """Process CPU time the trial used (training + evaluations), for utilisation figures."""
     wall_seconds: float = 0.0
@@ -132,23 +141,122 @@ def run_trial(task: TrialTask, report: Report) -> TrialOutcome:
     c0 = time.process_time()
     attrs: dict[str, Any] = {"source": "autotune", "seed": int(task.seed), "worker": worker_id(), "diverged": False}
 
+    rung_nets: dict[int, str] = {}
+
     def finish(state: str, value: float | None, cause: str | None, **texts: str | None) -> TrialOutcome:
         if cause is not None:
             attrs["cause"] = cause
         cpu, wall = time.process_time() - c0, time.perf_counter() - t0
         attrs.update(trial_cpu_seconds=cpu, trial_wall_seconds=wall)  # the worker's busy time (overhead bench)
         return TrialOutcome(
-            task.number, state, value, cause, attrs, texts.get("net_json"), texts.get("net_js"),
+            task.number, state, value, cause, attrs, texts.get("net_json"), texts.get("net_js"), dict(rung_nets),
             cpu_seconds=cpu, wall_seconds=wall,
         )  # fmt: skip
 
     try:
+        if task.rungs:
+            return _run_ladder(task, report, attrs, _Limits.of(task, t0), finish, rung_nets)
         return _run(task, report, attrs, t0, finish)
     except _TrialTimeout as exc:
         return finish(PRUNED, None, str(exc))
     except Exception as exc:  # the objective's own failure: a FAIL state with the traceback, never a silent zero
         tb = traceback.format_exc(limit=8)
         return finish(FAILED, None, f"{type(exc).__name__}: {exc}\n{tb}")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Limits:
+    """The trial's wall-time limits as one check: its own ``timeout_s`` and the study's ``deadline``."""
+
+    trial_end: float
+    """``time.perf_counter()`` at which the trial's own limit passes (inf: none)."""
+    study_end: float
+    """``time.time()`` at which the study's budget ends (inf: none)."""
+    timeout_s: float | None
+
+    @classmethod
+    def of(cls, task: TrialTask, t0: float) -> _Limits:
+        return cls(t0 + task.timeout_s if task.timeout_s else math.inf,
+                   task.deadline if task.deadline else math.inf, task.timeout_s)  # fmt: skip
+
+    def check(self, where: str) -> None:
+        """Raise ``_TrialTimeout`` naming the limit and ``where`` once either has passed."""
+        if time.perf_counter() > self.trial_end:
+            raise _TrialTimeout(f"timeout: trial wall time exceeded trial_timeout_s = {self.timeout_s:g} s ({where})")
+        if time.time() > self.study_end:
+            raise _TrialTimeout(f"deadline: the study's time budget ended ({where})")
+
+
+def _run_ladder(
+    task: TrialTask,
+    report: Report,
+    attrs: dict[str, Any],
+    limits: _Limits,
+    finish: Callable[..., TrialOutcome],
+    rung_nets: dict[int, str],
+) -> TrialOutcome:
+    """Climb the budget ladder: a fresh training per rung, each scored officially and reported at B_r/B_0."""
+    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, net_settings, official_protocol
+    from autotune.learner import train
+    from autotune.search.ladder import rung_config
+    from autotune.search.space import param_count
+
+    top = TrainConfig.from_mapping(task.config)
+    protocol = task.final_protocol or official_protocol(top)
+    rungs: list[dict[str, Any]] = []
+    attrs.update(
+        config=top.to_mapping(), settings=top.to_deepqlearn(), input_size=top.net_inputs, num_states=top.num_states,
+        param_count=param_count(top), official_protocol=protocol, ladder=list(task.rungs), rungs=rungs,
+        frames_simulated=0,
+    )  # fmt: skip
+    value: float | None = None
+    net_json = net_js = None
+    for r, budget in enumerate(task.rungs):
+        config = rung_config(top, budget)
+        where = f"rung {r}, {budget:,} iterations"
+        t_rung = time.perf_counter()
+        limits.check(f"before {where}")
+
+        def progress(done: int, total: int, where: str = where) -> None:
+            limits.check(f"{where}: training at {done:,} of {total:,} frames")
+
+        result = train(config, task.seed, report_points=task.report_points, quick_eval=False, progress=progress)
+        attrs["frames_simulated"] += result.frames
+        if result.diverged:
+            attrs["diverged"] = True
+            return finish(PRUNED, None, f"diverged at {where}: {result.diverged_reason}")
+        convnet = result.convnet()
+        te = time.perf_counter()
+
+        def eval_progress(done: int, total: int, where: str = where) -> None:
+            limits.check(f"{where}: official evaluation at {done:,} of {total:,} frames")
+
+        ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress)
+        attrs["frames_simulated"] += ev.runs * ev.frames
+        score = float(ev.median_site)
+        if not math.isfinite(score):  # pragma: no cover - scores are finite speeds
+            return finish(FAILED, None, f"official score is not finite at {where}: {score!r}")
+        net_json = dumps_net(convnet)
+        rung_nets[budget] = net_json
+        rungs.append({
+            "budget": int(budget), "score": score, "seconds": time.perf_counter() - t_rung,
+            "train_seconds": result.train_seconds, "eval_seconds": time.perf_counter() - te,
+            "official_mean": ev.mean, "official_std": ev.std, "frames": int(result.frames),
+        })  # fmt: skip
+        attrs["curve"] = [
+            {"step": k, "frames": int(p.frames), "quick_score": None, "mean_reward": _finite(p.mean_reward),
+             "loss": _finite(p.loss)} for k, p in enumerate(result.curve)
+        ]  # fmt: skip
+        value = score
+        step = budget // task.rungs[0]
+        if report(step, attrs["frames_simulated"], score) and r < len(task.rungs) - 1:
+            return finish(PRUNED, None, f"pruned after rung {r} ({budget:,} iterations, {score:.2f} mph) by the pruner")
+        if r == len(task.rungs) - 1:
+            net_js = export_netjs(convnet, net_settings(config))
+            attrs.update(official_mean=ev.mean, official_std=ev.std, train_seconds=result.train_seconds,
+                         eval_seconds=rungs[-1]["eval_seconds"])  # fmt: skip
+    assert value is not None
+    return finish(COMPLETE, value, None, net_json=net_json, net_js=net_js)
 
 
 def _run(
@@ -172,24 +280,21 @@ def _run(
         param_count=param_count(config),
         official_protocol=protocol,
     )
-    deadline = t0 + task.timeout_s if task.timeout_s else math.inf
-    limit = f"timeout: trial wall time exceeded trial_timeout_s = {task.timeout_s:g} s" if task.timeout_s else ""
+    limits = _Limits.of(task, t0)
     curve: list[dict[str, Any]] = []
     attrs["curve"] = curve
     pruned_at: list[int] = []
 
     def reporter(k: int, frames: int, quick_score: float) -> bool:
         curve.append({"step": k, "frames": int(frames), "quick_score": _finite(quick_score)})
-        if time.perf_counter() > deadline:
-            raise _TrialTimeout(f"{limit} (at report {k}, {frames:,} frames)")
+        limits.check(f"at report {k}, {frames:,} frames")
         if report(k, int(frames), float(quick_score)):
             pruned_at.append(k)
             return True
         return False
 
     def progress(done: int, total: int) -> None:
-        if time.perf_counter() > deadline:
-            raise _TrialTimeout(f"{limit} (training at {done:,} of {total:,} frames)")
+        limits.check(f"training at {done:,} of {total:,} frames")
 
     try:
         result = train(
@@ -209,12 +314,14 @@ def _run(
         return finish(PRUNED, None, f"pruned at step {pruned_at[0]} by the pruner")
     if result.stopped:  # pragma: no cover - only the reporter stops training, and it always records why
         return finish(PRUNED, None, f"stopped: {result.stop_reason}")
-    if time.perf_counter() > deadline:
-        raise _TrialTimeout(f"{limit} (before the official evaluation)")
+    limits.check("before the official evaluation")
+
+    def eval_progress(done: int, total: int) -> None:
+        limits.check(f"official evaluation at {done:,} of {total:,} frames")
 
     te = time.perf_counter()
     convnet = result.convnet()
-    ev = evaluate_official(convnet, config, protocol=protocol)
+    ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress)
     net_json = dumps_net(convnet)
     net_js = export_netjs(convnet, net_settings(config))
     attrs["eval_seconds"] = time.perf_counter() - te

@@ -336,3 +336,28 @@ def study_resources(storages: Storages, study_name: str) -> dict[str, Any]:
     spec = load_study(storages, study_name).user_attrs.get("spec")
     resources = spec.get("resources") if isinstance(spec, dict) else None
     return resources if isinstance(resources, dict) else {}
+
+
+def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
+    """The seed race's standings (``autotune.search.racing``): each entrant's fresh-seed mean ± sd and n.
+
+    None when the study has not raced. The winner is the entrant with the most fresh seeds, then the best
+    mean: the configuration to retrain, as opposed to the best single net (the leaderboard's number).
+    """
+    from autotune.search import racing
+
+    study = load_study(storages, study_name)
+    field = study.user_attrs.get("race_field")
+    if not field:
+        return None
+    trials = study.get_trials(deepcopy=False)
+    results: dict[tuple[int, int], float | None] = {}
+    for t in trials:
+        if "race_of" in t.user_attrs and t.state == TrialState.COMPLETE and t.value is not None:
+            results[(int(t.user_attrs["race_of"]), int(t.user_attrs["race_seed"]))] = float(t.value)
+    rows = []
+    for st in racing.standings([int(n) for n in field], results):
+        rows.append({"trial": st.number, "selecting_value": trials[st.number].value, "n": len(st.scores),
+                     "mean": st.mean if st.scores else None, "sd": st.sd if len(st.scores) > 1 else None,
+                     "scores": list(st.scores)})  # fmt: skip
+    return {"entrants": [int(n) for n in field], "standings": rows, "winner": rows[0] if rows[0]["n"] else None}

@@ -3,9 +3,14 @@
 ``sample(trial, spec)`` uses only ``trial.suggest_int / suggest_float / suggest_categorical``
 (duck typing: this module does not import optuna), so the same code serves an Optuna trial, a
 fixed-params trial or a test double. Params are in sampling coordinates — ``one_minus_gamma``
-on a log scale instead of gamma, the layout as ``n_layers`` then ``neurons_i`` / ``activation_i``
-for i < n_layers (define-by-run) — and ``to_config`` turns them into the real TrainConfig;
-``encode`` is the inverse, so crowd submissions enter a study under the same names.
+on a log scale instead of gamma, ε's schedule as fractions of the budget in a ladder study — and
+``to_config`` turns them into the real TrainConfig; ``encode`` is the inverse, so crowd submissions
+enter a study under the same names.
+
+The layout is fixed-shape: ``n_layers``, then ``neurons_i`` / ``activation_i`` for EVERY i below the
+space's largest n_layers, of which the first n_layers are used. Every trial then has the same
+parameters, so multivariate TPE models them jointly and GP / CMA-ES do not fall back to independent
+sampling; the reachable configurations are those of the define-by-run layout (tests).
 """
 
 from __future__ import annotations
@@ -16,9 +21,12 @@ from typing import Any, Protocol
 
 from autotune import TrainConfig, format_hidden, layer_sizes
 from autotune.convnet import spec as netspec
-from autotune.search.spec import LAYOUT, Dimension, SpecError, StudySpec, build_config
+from autotune.search.ladder import cap_start, relative_schedule
+from autotune.search.spec import FRACTIONS, LAYOUT, Dimension, SpecError, StudySpec, build_config
 
-__all__ = ["DEFAULT_SPACE", "Trial", "sample", "to_config", "encode", "param_count", "outside"]
+__all__ = [
+    "DEFAULT_SPACE", "PAPER_SPACE", "Trial", "sample", "dimensions", "to_config", "encode", "param_count", "outside",
+]  # fmt: skip
 
 
 class Trial(Protocol):
@@ -66,23 +74,45 @@ DEFAULT_SPACE: dict[str, dict[str, Any]] = {
     "activation": {"choices": ["relu", "tanh", "sigmoid", "maxout"]},
 }
 
+# paper.toml's space: the same Table-1 settings on a budget ladder — the training length is the ladder's,
+# ε's schedule is searched as fractions of each rung's budget (crowd: burn-in 0.06 %–37.5 % of
+# trainIterations, decay end 1 %–2,500 %, 10–90 % quantiles 0.5 %–20 % and 10 %–150 %), and the trainer
+# method joins (the best v2 human net, jnorthrup-v05, trained with adagrad; convnetjs's three methods).
+PAPER_SPACE: dict[str, dict[str, Any]] = {
+    **{k: v for k, v in DEFAULT_SPACE.items()
+       if k not in ("train_iterations", "learning_steps_total", "learning_steps_burnin", "n_layers", "neurons",
+                    "activation")},
+    "learning_steps_burnin_fraction": {"low": 5e-4, "high": 0.5, "log": True},
+    "learning_steps_total_fraction": {"low": 0.01, "high": 5.0, "log": True},
+    "method": {"choices": ["sgd", "adagrad", "adadelta"]},
+    "n_layers": DEFAULT_SPACE["n_layers"],
+    "neurons": DEFAULT_SPACE["neurons"],
+    "activation": DEFAULT_SPACE["activation"],
+}  # fmt: skip
+"""``study_configs/paper.toml``'s [space] (a test keeps the two equal)."""
+
 _FC_RE = re.compile(r"^fc:(\d+)(?::([A-Za-z]+))?$")
 
 
 def sample(trial: Trial, spec: StudySpec) -> dict[str, Any]:
     """Suggest every [space] parameter of ``spec`` on ``trial``; returns the params (sampling coordinates)."""
-    params: dict[str, Any] = {}
+    return {name: _suggest(trial, d, name) for name, d in dimensions(spec).items()}
+
+
+def dimensions(spec: StudySpec) -> dict[str, Dimension]:
+    """Every parameter of the space by its name, in sampling order (the layout expanded to fixed shape)."""
+    out: dict[str, Dimension] = {}
     dims = spec.dimensions
     for d in spec.space:
         if d.name in LAYOUT:
             if d.name == "n_layers":
-                n = params["n_layers"] = _suggest(trial, d, "n_layers")
-                for i in range(n):
-                    params[f"neurons_{i}"] = _suggest(trial, dims["neurons"], f"neurons_{i}")
-                    params[f"activation_{i}"] = _suggest(trial, dims["activation"], f"activation_{i}")
+                out["n_layers"] = d
+                for i in range(spec.max_layers):
+                    out[f"neurons_{i}"] = dims["neurons"]
+                    out[f"activation_{i}"] = dims["activation"]
             continue
-        params[d.name] = _suggest(trial, d, d.name)
-    return params
+        out[d.name] = d
+    return out
 
 
 def _suggest(trial: Trial, d: Dimension, name: str) -> Any:
@@ -94,11 +124,13 @@ def _suggest(trial: Trial, d: Dimension, name: str) -> Any:
     return trial.suggest_float(name, float(d.low), float(d.high), step=d.step, log=d.log)
 
 
-def to_config(spec: StudySpec, params: Mapping[str, Any]) -> TrainConfig:
+def to_config(spec: StudySpec, params: Mapping[str, Any], budget: int | None = None) -> TrainConfig:
     """The TrainConfig a trial trains: [fixed] ∪ the decoded params (ConfigError if deepqlearn rejects it).
 
     ``start_learn_threshold`` (unless fixed) is capped at ``experience_size − 1``; gamma is
     ``1 − one_minus_gamma`` printed to 15 significant digits (so 0.3 stays 0.3 after the round trip).
+    In a ladder study ``budget`` is the training length (default: the ladder's last rung), the
+    ε fractions become iterations at it and the threshold is capped at a quarter of it.
     """
     expected = _param_names(spec, params)
     unknown = [k for k in params if k not in expected]
@@ -108,27 +140,41 @@ def to_config(spec: StudySpec, params: Mapping[str, Any]) -> TrainConfig:
     if missing:
         raise SpecError(f"params: {missing[0]!r} is missing; sample() gives every parameter of the space")
     values = spec.fixed_values
+    fractions: dict[str, float] = {}
     for d in spec.space:
         if d.name in LAYOUT:
             continue
         if d.name == "one_minus_gamma":
             values["gamma"] = float(f"{1.0 - params['one_minus_gamma']:.15g}")
+        elif d.name in FRACTIONS:
+            fractions[d.name] = float(params[d.name])
         else:
             values[d.name] = params[d.name]
     if spec.searches_layout:
         n = params["n_layers"]
         values["layers"] = "|".join(f"fc:{params[f'neurons_{i}']}:{params[f'activation_{i}']}" for i in range(n))
-    return build_config(spec.ruleset, values, cap_start="start_learn_threshold" not in spec.fixed_values)
+    cap = "start_learn_threshold" not in spec.fixed_values
+    if spec.ladder:
+        b = int(budget if budget is not None else spec.ladder[-1])
+        values["train_iterations"] = b
+        burnin_f = fractions.get(FRACTIONS[0])
+        total_f = fractions.get(FRACTIONS[1])
+        if burnin_f is not None or total_f is not None:
+            d = TrainConfig()
+            if burnin_f is None:
+                burnin_f = values.get("learning_steps_burnin", d.learning_steps_burnin) / b
+            if total_f is None:
+                total_f = values.get("learning_steps_total", d.learning_steps_total) / b
+            values["learning_steps_burnin"], values["learning_steps_total"] = relative_schedule(b, burnin_f, total_f)
+        if cap:
+            exp = values.get("experience_size", TrainConfig().experience_size)
+            start = values.get("start_learn_threshold", TrainConfig().start_learn_threshold)
+            values["start_learn_threshold"] = cap_start(int(start), int(exp), b)
+    return build_config(spec.ruleset, values, cap_start=cap)
 
 
 def _param_names(spec: StudySpec, params: Mapping[str, Any]) -> list[str]:
-    names = [d.name for d in spec.space if d.name not in LAYOUT]
-    if spec.searches_layout:
-        names.append("n_layers")
-        n = params.get("n_layers", 0)
-        for i in range(n if isinstance(n, int) else 0):
-            names += [f"neurons_{i}", f"activation_{i}"]
-    return names
+    return list(dimensions(spec))
 
 
 def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
@@ -144,6 +190,9 @@ def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
             continue
         if d.name == "one_minus_gamma":
             params["one_minus_gamma"] = float(f"{1.0 - config.gamma:.15g}")
+        elif d.name in FRACTIONS:
+            steps = config.learning_steps_burnin if d.name == FRACTIONS[0] else config.learning_steps_total
+            params[d.name] = steps / max(1, config.train_iterations)
         else:
             params[d.name] = getattr(config, d.name)
     if spec.searches_layout:
@@ -159,7 +208,17 @@ def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
                 )
             params[f"neurons_{i}"] = int(m.group(1))
             params[f"activation_{i}"] = m.group(2) or "linear"
+        dims = spec.dimensions
+        for i in range(len(layers), spec.max_layers):  # unused slots of the fixed shape: the first value of each
+            params[f"neurons_{i}"] = _first(dims["neurons"])
+            params[f"activation_{i}"] = _first(dims["activation"])
     return params
+
+
+def _first(d: Dimension) -> Any:
+    if d.kind == "categorical":
+        return d.choices[0]
+    return int(d.low) if d.kind == "int" else d.low  # type: ignore[arg-type]
 
 
 def outside(spec: StudySpec, params: Mapping[str, Any]) -> list[str]:

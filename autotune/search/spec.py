@@ -2,11 +2,14 @@
 
 Five tables, every key optional unless said otherwise::
 
-    [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s
+    [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
+                  sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
     [resources]   workers, cpus_per_trial, gpus_per_trial
+    [ladder]      rungs = [10000, 30000, …]: training length as a budget ladder (``autotune.search.ladder``)
+    [warm_start]  crowd = true: enqueue the shipped crowd settings of the study's engine first
 
 Every problem raises ``SpecError`` with ONE line naming the file, the table, the key and the fix
 (``study_configs/x.toml: [space] learning_rate: low 0.1 > high 0.01; swap them``), so the CLI can print
@@ -53,14 +56,22 @@ __all__ = [
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc")
 PRUNERS = ("median", "hyperband", "sha", "wilcoxon", "none")
-SECTIONS = ("study", "fixed", "space", "evaluation", "resources")
+SECTIONS = ("study", "fixed", "space", "evaluation", "resources", "ladder", "warm_start")
 LAYOUT = ("n_layers", "neurons", "activation")
-"""The hidden-layer layout: n_layers, then neurons_i and activation_i for every i < n_layers."""
+"""The hidden-layer layout, fixed-shape: n_layers, then neurons_i and activation_i for every i below the
+largest n_layers (the first n_layers are used), so every trial has the same parameters."""
+FRACTIONS = ("learning_steps_burnin_fraction", "learning_steps_total_fraction")
+"""Ladder studies: ε's burn-in and decay length as fractions of the rung's budget (``autotune.search.ladder``)."""
 # [space] names that set a TrainConfig field of another name (sampling coordinates)
-_FIELD_OF = {"one_minus_gamma": "gamma", "n_layers": "layers", "neurons": "layers", "activation": "layers"}
+_FIELD_OF = {
+    "one_minus_gamma": "gamma", "n_layers": "layers", "neurons": "layers", "activation": "layers",
+    "learning_steps_burnin_fraction": "learning_steps_burnin", "learning_steps_total_fraction": "learning_steps_total",
+}  # fmt: skip
 PARAMS: tuple[str, ...] = (
     *(f.name for f in fields.FIELDS if f.name != "gamma"),
     "one_minus_gamma",
+    "method",
+    *FRACTIONS,
     *LAYOUT,
 )
 """Every name a [space] table may search (the shared search-space vocabulary)."""
@@ -102,7 +113,23 @@ class StudySection:
     max_retries: int = 2
     """How many times a FAILed trial (worker died, timeout) is re-run with the same settings."""
     trial_timeout_s: float = _DEFAULT_TRIAL_TIMEOUT_S
-    """Wall-time limit [s] of one trial (training + evaluations); beyond it the trial FAILs."""
+    """Wall-time limit [s] of one trial (training + evaluations); beyond it the trial is PRUNED (cause: timeout)."""
+    sampler_startup_trials: int = 10
+    """Trials the sampler draws at random before modelling (TPE/GP/CMA-ES ``n_startup_trials``; not the pruner's)."""
+    max_trial_cost_s: float | None = None
+    """Cost cap [s]: a draw whose cheapest rung is predicted to cost more is refused and redrawn, and a trial's
+    top rung is the highest whose rungs fit under it (None: trial_timeout_s)."""
+    race_fraction: float = 0.25
+    """Last fraction of timeout_s spent racing the best configurations over fresh seeds (0: no race)."""
+    race_configs: int = 4
+    """Configurations entering the seed race (the best distinct ones by value)."""
+    race_seeds: int = 1
+    """Fresh seeds per configuration per race round (the same seeds for every configuration)."""
+
+    @property
+    def cost_cap_s(self) -> float:
+        """The cap the cost gate uses [s]: max_trial_cost_s, else the trial limit."""
+        return self.max_trial_cost_s if self.max_trial_cost_s is not None else self.trial_timeout_s
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,6 +192,17 @@ class ResourcesSection:
 
 
 @dataclasses.dataclass(frozen=True)
+class WarmStartSection:
+    """[warm_start]: what the sampler knows before its first draw."""
+
+    crowd: bool = False
+    """Enqueue the shipped crowd settings of the study's engine (each repository's best-scored version, mapped
+    into the space; every one is trained and measured, no claimed score becomes a value)."""
+    study: str = ""
+    """Copy this earlier study's measured trials (same storage) into the sampler's history, no retraining."""
+
+
+@dataclasses.dataclass(frozen=True)
 class StudySpec:
     """A validated study: [study], [fixed], [space], [evaluation] and [resources]."""
 
@@ -178,6 +216,10 @@ class StudySpec:
     """Intermediate and final scoring."""
     resources: ResourcesSection
     """Workers and what each holds."""
+    ladder: tuple[int, ...] = ()
+    """[ladder] rungs [iterations]: each trial climbs them (fresh training per rung); () = one training."""
+    warm_start: WarmStartSection = WarmStartSection()
+    """Crowd prior / earlier study copied into the sampler's history."""
     source: str = ""
     """Where the spec came from (the TOML path), used in error messages."""
 
@@ -202,6 +244,14 @@ class StudySpec:
         """The study's engine rules ('v1' or 'v2')."""
         return self.study.ruleset
 
+    @property
+    def max_layers(self) -> int:
+        """The largest n_layers the space can draw (the fixed-shape layout has this many neurons_i/activation_i)."""
+        d = self.dimensions.get("n_layers")
+        if d is None:
+            return 0
+        return int(max(d.choices)) if d.kind == "categorical" else int(d.high or 0)
+
     # -- (de)serialisation ------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready tables (stored as a study user attr); ``parse_spec`` rebuilds the same spec."""
@@ -211,6 +261,8 @@ class StudySpec:
             "space": {d.name: d.to_dict() for d in self.space},
             "evaluation": dataclasses.asdict(self.evaluation),
             "resources": dataclasses.asdict(self.resources),
+            **({"ladder": {"rungs": list(self.ladder)}} if self.ladder else {}),
+            "warm_start": dataclasses.asdict(self.warm_start),
         }
 
     def with_overrides(
@@ -221,6 +273,7 @@ class StudySpec:
         workers: int | None = None,
         n_trials: int | None = None,
         timeout_s: float | None = None,
+        warm_start: str | None = None,
     ) -> StudySpec:
         """A copy with command-line overrides applied (None: keep); each is validated like the TOML key."""
         study = self.study
@@ -242,7 +295,13 @@ class StudySpec:
             resources = dataclasses.replace(
                 resources, workers=_pos_int(workers, f"--workers (overrides {src} [resources] workers)")
             )
-        return dataclasses.replace(self, study=study, resources=resources)
+        warm = self.warm_start
+        if warm_start is not None:
+            if warm_start == "crowd":
+                warm = dataclasses.replace(warm, crowd=True)
+            else:
+                warm = dataclasses.replace(warm, study=_check_name(warm_start, "--warm-start (crowd or a study name)"))
+        return dataclasses.replace(self, study=study, resources=resources, warm_start=warm)
 
 
 # --------------------------------------------------------------------------------------------
@@ -280,11 +339,13 @@ def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: s
         if not isinstance(value, Mapping):
             raise SpecError(f"{source}: [{key}]: must be a table, got {value!r}; write it as [{key}] with keys below")
     study = _parse_study(data.get("study", {}), source, default_name)
-    evaluation = _parse_evaluation(data.get("evaluation", {}), source, study.ruleset)
+    evaluation = _parse_evaluation(data.get("evaluation", {}), source, study.ruleset, ladder="ladder" in data)
     resources = _parse_resources(data.get("resources", {}), source)
     space = tuple(_parse_dimension(name, entry, source, study.ruleset) for name, entry in data.get("space", {}).items())
+    ladder = _parse_ladder(data.get("ladder"), source)
+    warm = _parse_warm_start(data.get("warm_start", {}), source)
     fixed = _parse_fixed(data.get("fixed", {}), source, study.ruleset, {d.name for d in space})
-    spec = StudySpec(study, fixed, space, evaluation, resources, source)
+    spec = StudySpec(study, fixed, space, evaluation, resources, ladder, warm, source)
     _check_combination(spec)
     return spec
 
@@ -293,6 +354,8 @@ _SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "study": tuple(f.name for f in dataclasses.fields(StudySection)),
     "evaluation": tuple(f.name for f in dataclasses.fields(EvaluationSection)),
     "resources": tuple(f.name for f in dataclasses.fields(ResourcesSection)),
+    "ladder": ("rungs",),
+    "warm_start": tuple(f.name for f in dataclasses.fields(WarmStartSection)),
 }
 
 
@@ -333,12 +396,51 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     trial_timeout_s = _pos_float(
         table.get("trial_timeout_s", _DEFAULT_TRIAL_TIMEOUT_S), f"{src}: [study] trial_timeout_s"
     )
+    d = StudySection(name)
+    startup = _int(table.get("sampler_startup_trials", d.sampler_startup_trials),
+                   f"{src}: [study] sampler_startup_trials", 0, 1_000_000)  # fmt: skip
+    cap = table.get("max_trial_cost_s")
+    if cap is not None:
+        cap = _pos_float(cap, f"{src}: [study] max_trial_cost_s")
+    race = _float(table.get("race_fraction", d.race_fraction), f"{src}: [study] race_fraction", 0.0, 0.9)
+    race_configs = _int(table.get("race_configs", d.race_configs), f"{src}: [study] race_configs", 2, 1000)
+    race_seeds = _int(table.get("race_seeds", d.race_seeds), f"{src}: [study] race_seeds", 1, 100)
     return StudySection(
-        name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s
-    )
+        name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
+        startup, cap, race, race_configs, race_seeds,
+    )  # fmt: skip
 
 
-def _parse_evaluation(table: Mapping[str, Any], src: str, ruleset: str) -> EvaluationSection:
+def _parse_ladder(table: Any, src: str) -> tuple[int, ...]:
+    if table is None:
+        return ()
+    _check_keys(table, "ladder", src)
+    rungs = table.get("rungs")
+    what = f"{src}: [ladder] rungs"
+    if not isinstance(rungs, list) or not rungs:
+        raise SpecError(f"{what}: must be a non-empty list of iterations, got {rungs!r}; e.g. rungs = [10000, 30000]")
+    values = [_int(b, what, 1, int(fields.bounds("train_iterations")[1])) for b in rungs]
+    from autotune.search.ladder import Ladder
+
+    try:
+        Ladder(tuple(values))
+    except ValueError as exc:
+        raise SpecError(f"{what}: {str(exc).removeprefix('rungs: ')}; e.g. rungs = [10000, 30000, 90000]") from None
+    return tuple(values)
+
+
+def _parse_warm_start(table: Mapping[str, Any], src: str) -> WarmStartSection:
+    _check_keys(table, "warm_start", src)
+    crowd = table.get("crowd", False)
+    if not isinstance(crowd, bool):
+        raise SpecError(f"{src}: [warm_start] crowd: must be true or false, got {crowd!r}; write crowd = true")
+    study = table.get("study", "")
+    if study:
+        study = _check_name(study, f"{src}: [warm_start] study")
+    return WarmStartSection(crowd, study)
+
+
+def _parse_evaluation(table: Mapping[str, Any], src: str, ruleset: str, *, ladder: bool) -> EvaluationSection:
     _check_keys(table, "evaluation", src)
     where = _Where(src, "evaluation")
     d = EvaluationSection()
@@ -357,7 +459,7 @@ def _parse_evaluation(table: Mapping[str, Any], src: str, ruleset: str) -> Evalu
         table.get("n_startup_trials", d.n_startup_trials), f"{src}: [evaluation] n_startup_trials", 0, 1_000_000
     )
     n_warmup = _int(table.get("n_warmup_steps", d.n_warmup_steps), f"{src}: [evaluation] n_warmup_steps", 0, 1000)
-    if n_warmup >= report_points:
+    if n_warmup >= report_points and not ladder:  # a ladder's reports are its rungs, not report_points
         raise where.error(
             "n_warmup_steps",
             f"{n_warmup} ≥ report_points {report_points}, so no trial could ever be pruned",
@@ -476,8 +578,10 @@ def _param_kind(name: str) -> tuple[str, float, float | None]:
         return "int", 0, None
     if name == "neurons":
         return "int", 1, None
-    if name == "activation":
+    if name in ("activation", "method"):
         return "str", 0, None
+    if name in FRACTIONS:
+        return "float", 0.0, 10.0
     f = fields.field(name)
     return ("int" if f.kind is int else "float"), f.low, f.high
 
@@ -487,10 +591,14 @@ def _check_value(
 ) -> Any:
     """One bound or choice, of the right type and inside what deepqlearn accepts."""
     if kind == "str":
+        example = '"sgd", "adagrad"' if name == "method" else '"relu"'
         if not isinstance(value, str):
-            raise where.error(name, f"{what} {value!r} is not a string", 'use activation names like "relu"')
+            raise where.error(name, f"{what} {value!r} is not a string", f"use names like {example}")
         try:
-            TrainConfig(ruleset=ruleset, layers=f"fc:4:{value}")
+            if name == "method":
+                TrainConfig(ruleset=ruleset, method=value)
+            else:
+                TrainConfig(ruleset=ruleset, layers=f"fc:4:{value}")
         except ConfigError as exc:
             raise where.error(
                 name, f"{what} {value!r} is not accepted ({_one_line(str(exc))})", "fix the choice"
@@ -542,6 +650,18 @@ def _check_combination(spec: StudySpec) -> None:
                           f"add {missing} = {_LAYOUT_EXAMPLE[missing]}")  # fmt: skip
     if "activation" in dims and dims["activation"].kind != "categorical":  # pragma: no cover - rejected per entry
         raise where.error("activation", "needs choices", 'write activation = { choices = ["relu", "tanh"] }')
+    if spec.ladder:
+        for name in ("train_iterations", "learning_steps_burnin", "learning_steps_total"):
+            if name in dims or (name == "train_iterations" and name in fixed):
+                fix = ("remove it: each rung trains for its budget" if name == "train_iterations"
+                       else f"search {name}_fraction (a fraction of the rung's budget) instead")  # fmt: skip
+                table = "space" if name in dims else "fixed"
+                raise _Where(src, table).error(name, "a ladder study sets the training length per rung", fix)
+    else:
+        for name in FRACTIONS:
+            if name in dims:
+                raise where.error(name, "fractions of the budget need a [ladder]",
+                                  "add [ladder] rungs = [...] or search learning_steps_* directly")  # fmt: skip
     exp = dims.get("experience_size")
     if "start_learn_threshold" in fixed and exp is not None:
         smallest = min(exp.choices) if exp.kind == "categorical" else exp.low
@@ -577,9 +697,8 @@ def _probe_points(spec: StudySpec) -> list[tuple[str, dict[str, Any]]]:
             params[d.name] = _corner(d, pick)
         if spec.searches_layout:
             dims = spec.dimensions
-            n = _corner(dims["n_layers"], pick)
-            params["n_layers"] = n
-            for i in range(n):
+            params["n_layers"] = _corner(dims["n_layers"], pick)
+            for i in range(spec.max_layers):
                 params[f"neurons_{i}"] = _corner(dims["neurons"], pick)
                 params[f"activation_{i}"] = dims["activation"].choices[pick]
         points.append((label, params))
@@ -589,6 +708,8 @@ def _probe_points(spec: StudySpec) -> list[tuple[str, dict[str, Any]]]:
             narrow = _corner(dims["neurons"], 0)
             for act in dims["activation"].choices:
                 params = {**points[0][1], "n_layers": 1, "neurons_0": narrow, "activation_0": act}
+                for i in range(1, spec.max_layers):
+                    params[f"neurons_{i}"], params[f"activation_{i}"] = narrow, act
                 points.append((f"neurons {narrow} with activation {act!r}", params))
     return points
 

@@ -1,0 +1,159 @@
+"""What a rung will cost: a wall-time model of training + official scoring, fitted online to the study.
+
+A uniform draw from the paper's space can train for hours (7 layers × 2,600 wide at batch 400), so
+the search must know a draw's price before it pays it. One rung's wall time is modelled as a sum of
+non-negative work terms whose coefficients are seconds per unit of work:
+
+* training, per decision: the simulator step (∝ 1 + other_agents: every car moves), the input window
+  and the greedy forward pass (∝ inputs, ∝ params), and once learning started one batch update
+  (∝ params × batch: the s₀ and s₁ halves through the net, then the backward pass);
+* the official evaluation: a fixed part and one forward pass per decision of every red car
+  (∝ (1 + other_agents) and ∝ params × (1 + other_agents)).
+
+``CostModel.prior()`` holds coefficients measured on the 2-core reference machine (see
+``PRIOR``); ``fit`` refits them by non-negative least squares on *relative* errors over the study's
+finished rungs, the prior entering as a few pseudo-observations so that a handful of rungs nudges
+rather than replaces it. Plain numpy/scipy: no Optuna, no torch, so the driver can price a draw
+without building a net.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from autotune import TrainConfig
+from autotune.search.space import param_count
+
+__all__ = ["FEATURES", "PRIOR", "CostModel", "features", "Observation"]
+
+FEATURES = (
+    "decisions",  # B: simulator step + bookkeeping of the ego
+    "car_decisions",  # B·(1+K): every car moves each decision interval
+    "input_decisions",  # B·inputs: building the input window
+    "forward_work",  # B·params: the greedy forward pass
+    "update_work",  # (B − start)·params·batch: the batch update
+    "eval_fixed",  # 1 per rung: the official evaluation's set-up (engine, brain build)
+    "eval_cars",  # 1+K: cars simulated by the official runs
+    "eval_forward",  # params·(1+K): one forward per red car per decision of the official runs
+)
+"""The model's work terms, in the order of its coefficients."""
+
+PRIOR = np.array([
+    1.2e-4,  # s per decision (the learn call and the simulator step of the ego)
+    5.0e-6,  # s per car-decision
+    5.0e-8,  # s per input per decision
+    3.0e-10,  # s per weight per decision (greedy forward, numpy views)
+    1.0e-10,  # s per weight × batch sample per update (2B-row forward + backward, torch)
+    0.5,  # s per official evaluation (engine + brain build, 500 runs of 2,000 frames)
+    0.25,  # s per red car of the official runs
+    9.0e-6,  # s per weight per red car (~33,500 float64 forward passes per car)
+])  # fmt: skip
+"""Prior coefficients [s per unit of each FEATURES term] (reference machine, one thread)."""
+
+_PRIOR_WEIGHT = 4.0
+"""The prior counts as this many observations (spread over its anchor configurations)."""
+
+
+def features(config: TrainConfig, *, evaluated: bool = True) -> np.ndarray:
+    """The work terms of one rung of ``config`` (at its ``train_iterations``), see ``FEATURES``."""
+    b = float(config.train_iterations)
+    cars = 1.0 + config.other_agents
+    p = float(param_count(config))
+    learning = max(0.0, b - config.start_learn_threshold)
+    ev = 1.0 if evaluated else 0.0
+    return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,
+                     ev, ev * cars, ev * p * cars])  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class Observation:
+    """A finished rung: its config's work terms and the wall seconds it took."""
+
+    features: tuple[float, ...]
+    seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class CostModel:
+    """Coefficients [s per unit of work] of ``FEATURES``; predicts a rung's wall seconds."""
+
+    coef: tuple[float, ...] = tuple(PRIOR.tolist())
+    n_observations: int = 0
+    """Finished rungs the coefficients were fitted to (0: the prior alone)."""
+
+    @classmethod
+    def prior(cls) -> CostModel:
+        return cls()
+
+    def predict_features(self, x: np.ndarray) -> float:
+        return float(np.dot(np.asarray(self.coef), x))
+
+    def predict(self, config: TrainConfig, *, evaluated: bool = True) -> float:
+        """Predicted wall seconds of training ``config`` at its ``train_iterations`` (+ its official score)."""
+        return self.predict_features(features(config, evaluated=evaluated))
+
+    def fit(self, observations: Iterable[Observation]) -> CostModel:
+        """Refit to finished rungs (relative least squares, non-negative), the prior as pseudo-observations."""
+        from scipy.optimize import nnls
+
+        obs = [o for o in observations if o.seconds > 0 and math.isfinite(o.seconds)]
+        if not obs:
+            return CostModel(tuple(PRIOR.tolist()), 0)
+        prior = np.asarray(PRIOR)
+        rows: list[np.ndarray] = []
+        target: list[float] = []
+        for o in obs:
+            x = np.asarray(o.features, dtype=float)
+            rows.append(x / o.seconds)
+            target.append(1.0)
+        # the prior: each coefficient pulled toward its prior value, scaled to a relative residual
+        w = math.sqrt(_PRIOR_WEIGHT / len(prior))
+        for j, c in enumerate(prior):
+            e = np.zeros(len(prior))
+            e[j] = w / c
+            rows.append(e)
+            target.append(w)
+        coef, _ = nnls(np.vstack(rows), np.asarray(target))
+        return CostModel(tuple(float(c) for c in coef), len(obs))
+
+    def ladder_costs(self, configs: Sequence[TrainConfig]) -> list[float]:
+        """Predicted seconds of each rung (one config per rung)."""
+        return [self.predict(c) for c in configs]
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """The rungs a trial will climb and what each is predicted to cost."""
+
+    budgets: tuple[int, ...]
+    """Budgets [iterations] of rungs 0 … top."""
+    costs: tuple[float, ...]
+    """Predicted wall seconds of each of those rungs."""
+
+    @property
+    def total_s(self) -> float:
+        """Predicted seconds if the trial climbs to its top."""
+        return float(sum(self.costs))
+
+
+def plan(configs: Sequence[TrainConfig], model: CostModel, cap_s: float, top: int | None = None) -> Plan | None:
+    """Rungs 0 … the highest whose cumulative predicted cost fits ``cap_s`` (and ≤ ``top``); None: rung 0 does not.
+
+    ``configs`` holds the configuration of every rung of the ladder (one element: a single training).
+    """
+    last = len(configs) - 1 if top is None else min(top, len(configs) - 1)
+    costs: list[float] = []
+    total = 0.0
+    for config in configs[: last + 1]:
+        c = model.predict(config)
+        if total + c > cap_s:
+            break
+        costs.append(c)
+        total += c
+    if not costs:
+        return None
+    return Plan(tuple(int(c.train_iterations) for c in configs[: len(costs)]), tuple(costs))

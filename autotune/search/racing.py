@@ -1,0 +1,149 @@
+"""Seed racing: the best configurations retrained with fresh seeds, the worse half dropped after each round.
+
+A search result is a best-of-many, and one seed moves a DeepTraffic score by several mph (the same
+settings score 75.15 and 71.06 with seeds 1 and 2), so the best trial's value overstates its
+configuration. The last part of a study's time therefore races the best ``race_configs`` distinct
+configurations: round j retrains every survivor with the same ``race_seeds`` fresh seeds (paired
+comparisons: every configuration meets the same seeds), then keeps the better half by the mean over
+all its fresh seeds so far — successive halving over seeds. The seed that selected a configuration
+is left out of its mean. A race run is an ordinary trial (its own net and official score).
+
+Pure functions of plain records, so the race's state is whatever the study holds: a resumed driver
+rebuilds it from the trials' ``race_of`` / ``race_seed`` attributes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import statistics
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "standings", "RACE_SALT"]
+
+RACE_SALT = 0x5EED_2ACE
+"""Mixed into the race seeds so they never coincide with a trial's own seed."""
+
+
+def race_seed(study_seed: int, index: int) -> int:
+    """Fresh seed number ``index`` of a study's race (the same for every configuration)."""
+    ss = np.random.SeedSequence([int(study_seed), RACE_SALT, int(index)])
+    return int(ss.generate_state(1, np.uint32)[0] >> 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Entrant:
+    """A configuration in the race: the trial that selected it."""
+
+    number: int
+    """Trial number of the selecting trial (race runs point to it with ``race_of``)."""
+    value: float
+    """Its own score (selected by it, so left out of the race mean)."""
+    key: str
+    """The configuration, canonical JSON (identical settings race once)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RaceRun:
+    """One race run to launch: entrant ``race_of`` with fresh seed number ``seed_index``."""
+
+    race_of: int
+    seed_index: int
+
+
+@dataclasses.dataclass(frozen=True)
+class RaceStanding:
+    """A configuration's fresh-seed record so far."""
+
+    number: int
+    scores: tuple[float, ...]
+    """Official scores of its finished race runs, by seed index (a failed or stopped run is missing)."""
+
+    @property
+    def mean(self) -> float:
+        return statistics.fmean(self.scores) if self.scores else -math.inf
+
+    @property
+    def sd(self) -> float:
+        return statistics.stdev(self.scores) if len(self.scores) > 1 else 0.0
+
+
+def config_key(config: Mapping[str, Any]) -> str:
+    """Canonical JSON of a configuration mapping (the unit of the race)."""
+    return json.dumps(config, sort_keys=True, separators=(",", ":"))
+
+
+def entrants(candidates: Iterable[tuple[int, float, Mapping[str, Any]]], n: int) -> list[Entrant]:
+    """The best ``n`` distinct configurations among (trial number, value, config), best first."""
+    seen: set[str] = set()
+    out: list[Entrant] = []
+    for number, value, config in sorted(candidates, key=lambda c: (-c[1], c[0])):
+        key = config_key(config)
+        if key in seen or not math.isfinite(value):
+            continue
+        seen.add(key)
+        out.append(Entrant(number, float(value), key))
+        if len(out) == n:
+            break
+    return out
+
+
+def _survivors(
+    field: Sequence[int], results: Mapping[tuple[int, int], float | None], seeds_per_round: int
+) -> tuple[list[int], int, bool]:
+    """(survivors, current round, is the current round complete?) from the finished race runs."""
+    alive = list(field)
+    rnd = 0
+    while True:
+        seeds = range(rnd * seeds_per_round, (rnd + 1) * seeds_per_round)
+        done = all((n, s) in results for n in alive for s in seeds)
+        if not done or len(alive) <= 1:
+            return alive, rnd, done
+        upto = (rnd + 1) * seeds_per_round
+        ranked = sorted(alive, key=lambda n: (-_mean(n, results, upto), field.index(n)))
+        alive = ranked[: math.ceil(len(alive) / 2)]
+        rnd += 1
+
+
+def _mean(number: int, results: Mapping[tuple[int, int], float | None], upto: int) -> float:
+    """Mean over fresh seeds 0 … upto − 1; −inf if any of them failed (a configuration that fails ranks last)."""
+    scores = [results.get((number, s)) for s in range(upto)]
+    if any(x is None or not math.isfinite(x) for x in scores):
+        return -math.inf
+    return statistics.fmean(x for x in scores if x is not None)
+
+
+def next_runs(
+    field: Sequence[int],
+    results: Mapping[tuple[int, int], float | None],
+    launched: Iterable[tuple[int, int]],
+    seeds_per_round: int,
+) -> tuple[list[RaceRun], bool]:
+    """The race runs to launch now (not yet launched) and whether the race is over.
+
+    ``field``: the entrants' trial numbers, best first; ``results``: (race_of, seed index) → score of
+    finished race runs (None: the run failed or was stopped — the configuration then ranks last);
+    ``launched``: race runs started (finished or running).
+    """
+    if len(field) == 0:
+        return [], True
+    alive, rnd, done = _survivors(field, results, seeds_per_round)
+    if len(alive) <= 1 and (done or rnd > 0):
+        return [], True
+    started = set(launched)
+    seeds = range(rnd * seeds_per_round, (rnd + 1) * seeds_per_round)
+    runs = [RaceRun(n, s) for s in seeds for n in alive if (n, s) not in started]
+    return runs, False
+
+
+def standings(field: Sequence[int], results: Mapping[tuple[int, int], float | None]) -> list[RaceStanding]:
+    """Every entrant's fresh-seed scores, best mean first (more seeds first among equals)."""
+    out = []
+    for n in field:
+        scores = tuple(v for (m, _s), v in sorted(results.items()) if m == n and v is not None and math.isfinite(v))
+        out.append(RaceStanding(n, scores))
+    return sorted(out, key=lambda st: (-len(st.scores), -st.mean))

@@ -96,10 +96,11 @@ def _best(args: argparse.Namespace) -> int:
         print(json.dumps(record))
         return 0
     print(
-        f"best single net: trial {record['number']} of {args.study}: {record['value']:.2f} mph "
+        f"best trial {record['number']} of {args.study}: {record['value']:.2f} mph "
         f"({record.get('official_protocol', 'official')}), seed {record.get('seed')}, "
         f"{record.get('param_count', '?')} parameters"
     )
+    print("  (the best single net: the leaderboard's number, one seed's draw)")
     if race is not None and race["winner"] is not None:
         w = race["winner"]
         sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""
@@ -110,8 +111,8 @@ def _best(args: argparse.Namespace) -> int:
         for row in race["standings"][1:]:
             if row["n"]:
                 print(f"  raced: trial {row['trial']}: {row['mean']:.2f} mph over {row['n']} fresh seed(s)")
-    elif race is None:
-        print("best configuration by mean over fresh seeds: no seed race in this study (race_fraction 0 or no time)")
+    elif race is not None:
+        print("best configuration by mean over fresh seeds: the seed race has no finished run yet")
     for key, value in record["params"].items():
         print(f"  {key} = {value}")
     config = record.get("config", {})

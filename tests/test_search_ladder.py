@@ -1,0 +1,255 @@
+"""Issue 14's search machinery: the budget ladder, the cost model and gate, the crowd prior, the seed race.
+
+Fast tests (no Ray): a rung equals a standalone training at its budget; refused draws never become
+trials; the crowd prior lands inside the space with no claimed score as a value; the race's rounds;
+resuming with a changed space is refused.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import optuna
+import pytest
+
+from autotune import TrainConfig, dumps_net, evaluate_official
+from autotune.learner import train
+from autotune.search import racing, space
+from autotune.search.cost import FEATURES, CostModel, Observation, features, plan
+from autotune.search.driver import WARM_ATTR, Driver, WarmConfig, clip_params, make_pruner, make_sampler
+from autotune.search.gate import CostGatedSampler
+from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
+from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial
+from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
+from autotune.search.storage import open_storage
+from tests.conftest import ROOT
+
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+CONFIGS = ROOT / "study_configs"
+
+TINY = TrainConfig(
+    ruleset="v2", lanes_side=0, patches_ahead=2, other_agents=1, train_iterations=1200, temporal_window=0,
+    experience_size=500, start_learn_threshold=100, learning_steps_burnin=120, learning_steps_total=600,
+    layers="fc:4:relu", batch_size=8,
+)  # fmt: skip
+
+
+def _spec(**study: Any) -> StudySpec:
+    return parse_spec({
+        "study": {"name": "lad", "n_trials": 10, "timeout_s": 60, **study},
+        "ladder": {"rungs": [400, 1200]},
+        "fixed": {"otherAgents": 1, "temporal_window": 0, "experience_size": 500, "batch_size": 8},
+        "space": {
+            "lanes_side": {"low": 0, "high": 2}, "patches_ahead": {"low": 1, "high": 4},
+            "learning_steps_burnin_fraction": {"low": 0.01, "high": 0.2, "log": True},
+            "method": {"choices": ["sgd", "adagrad"]},
+            "n_layers": {"low": 0, "high": 2}, "neurons": {"low": 2, "high": 8},
+            "activation": {"choices": ["relu", "tanh"]},
+        },
+    })  # fmt: skip
+
+
+# -- the ladder -----------------------------------------------------------------------------
+
+
+def test_ladder_steps_and_top() -> None:
+    ladder = Ladder((10_000, 30_000, 90_000, 270_000))
+    assert ladder.steps == (1, 3, 9, 27) and ladder.reduction_factor == 3
+    assert [ladder.top_for(t) for t in (5_000, 10_000, 50_000, 100_000, 10**6)] == [0, 0, 2, 3, 3]
+    for bad in ((), (10, 5), (10, 25), (0, 10)):
+        with pytest.raises(ValueError, match="rungs"):
+            Ladder(bad)
+
+
+def test_rung_config_scales_the_length_bound_settings() -> None:
+    top = TINY.replace(train_iterations=90_000, learning_steps_burnin=9_000, learning_steps_total=45_000,
+                       experience_size=50_000, start_learn_threshold=20_000)  # fmt: skip
+    r0 = rung_config(top, 10_000)
+    assert (r0.train_iterations, r0.learning_steps_burnin, r0.learning_steps_total) == (10_000, 1_000, 5_000)
+    assert r0.start_learn_threshold == int(START_LEARN_CAP * 10_000)  # learning starts within the first quarter
+    assert rung_config(top, 90_000) == top
+    assert r0.replace(train_iterations=1) != r0 and r0.layers == top.layers and r0.gamma == top.gamma
+
+
+def test_a_rung_is_a_standalone_training_exactly() -> None:
+    """Every rung of a ladder trial equals training its rung config alone from the trial's seed, net and score."""
+    reports: list[tuple[int, float]] = []
+    outcome = run_trial(
+        TrialTask(number=0, config=TINY.to_mapping(), seed=7, rungs=(400, 1200)),
+        lambda step, frames, score: reports.append((step, score)) is not None,  # never prune
+    )
+    assert outcome.state == COMPLETE, outcome.cause
+    rungs = outcome.attrs["rungs"]
+    assert [r["budget"] for r in rungs] == [400, 1200] and [s for s, _ in reports] == [1, 3]
+    for rung in rungs:
+        alone = rung_config(TINY, rung["budget"])
+        result = train(alone, 7, quick_eval=False)
+        score = evaluate_official(result.convnet(), alone).median_site
+        assert score == rung["score"]
+        assert dumps_net(result.convnet()) == outcome.rung_nets[rung["budget"]]
+    assert outcome.value == rungs[-1]["score"] and outcome.net_js is not None
+
+
+def test_a_pruned_ladder_keeps_its_finished_rungs() -> None:
+    outcome = run_trial(TrialTask(number=0, config=TINY.to_mapping(), seed=3, rungs=(400, 1200)), lambda *a: True)
+    assert outcome.state == PRUNED and "pruned after rung 0" in (outcome.cause or "")
+    assert [r["budget"] for r in outcome.attrs["rungs"]] == [400] and set(outcome.rung_nets) == {400}
+    assert outcome.value is None
+
+
+def test_the_study_deadline_stops_a_trial_without_a_truncated_score() -> None:
+    import time
+
+    outcome = run_trial(
+        TrialTask(number=0, config=TINY.to_mapping(), seed=3, rungs=(400, 1200), deadline=time.time() - 1),
+        lambda *a: False,
+    )
+    assert outcome.state == PRUNED and outcome.cause is not None and outcome.cause.startswith("deadline")
+    assert outcome.value is None and outcome.attrs["rungs"] == []
+
+
+def test_the_official_evaluation_honours_the_deadline() -> None:
+    """A limit passing during the official evaluation stops it (PRUNED), it does not finish the 500 runs."""
+    import time
+
+    calls: list[int] = []
+
+    def report(step: int, frames: int, score: float) -> bool:
+        calls.append(step)
+        return False
+
+    t0 = time.perf_counter()
+    # a trial limit shorter than one official evaluation of a wide net: the check between chunks of runs bites
+    wide = TINY.replace(layers="fc:256:relu|fc:256:relu", other_agents=10, train_iterations=400)
+    outcome = run_trial(TrialTask(number=0, config=wide.to_mapping(), seed=3, rungs=(400,), timeout_s=1.0), report)
+    assert outcome.state == PRUNED and "timeout" in (outcome.cause or "") and calls == []
+    assert time.perf_counter() - t0 < 30
+
+
+# -- sampler, pruner, space -----------------------------------------------------------------
+
+
+def test_ladder_pruner_promotes_at_the_rungs() -> None:
+    pruner = make_pruner(_spec(pruner="sha"))
+    assert isinstance(pruner, optuna.pruners.SuccessiveHalvingPruner)
+    with pytest.raises(Exception, match="does not fit a budget ladder"):
+        make_pruner(_spec(pruner="wilcoxon"))
+
+
+def test_sampler_startup_count_is_the_specs() -> None:
+    sampler = make_sampler(_spec(sampler="tpe", sampler_startup_trials=3), 0)
+    assert isinstance(sampler, optuna.samplers.TPESampler) and sampler._n_startup_trials == 3  # noqa: SLF001
+
+
+def test_refused_draws_never_become_trials() -> None:
+    """The gate redraws over-cap draws: every trial is affordable, no extra trial exists, refusals are counted."""
+    spec = _spec()
+
+    def price(params: dict[str, Any]) -> float:
+        return 10.0 if params["lanes_side"] > 0 else 1.0  # lanes_side > 0 is "too expensive"
+
+    sampler = CostGatedSampler(optuna.samplers.TPESampler(seed=1, n_startup_trials=4), spec, price, 5.0, seed=1)
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    refused = 0
+    for _ in range(12):
+        trial = study.ask()
+        params = space.sample(trial, spec)
+        assert params["lanes_side"] == 0
+        refused += sampler.refused(trial.number)
+        study.tell(trial, float(params["patches_ahead"]))
+    assert len(study.trials) == 12 and refused > 0  # refusals used no trial (budget, startup phase)
+
+
+def test_cost_model_fits_rungs() -> None:
+    """Fitted to rungs that follow a known cost law, the model predicts a new config within 35 %."""
+    truth = CostModel(tuple(3 * c for c in CostModel.prior().coef))
+    configs = [rung_config(TINY.replace(layers=f"fc:{n}:relu", batch_size=b, other_agents=k), budget)
+               for n in (4, 64, 256) for b in (8, 64) for k in (0, 5) for budget in (400, 1200)]  # fmt: skip
+    obs = [Observation(tuple(features(c)), truth.predict(c)) for c in configs]
+    fitted = CostModel.prior().fit(obs)
+    new = TINY.replace(layers="fc:128:tanh|fc:32:relu", batch_size=32, other_agents=3, train_iterations=5000)
+    assert abs(fitted.predict(new) - truth.predict(new)) / truth.predict(new) < 0.35
+    assert len(fitted.coef) == len(FEATURES) and all(c >= 0 for c in fitted.coef)
+
+
+def test_plan_lowers_the_top_rung_to_the_cap() -> None:
+    model = CostModel.prior()
+    configs = [rung_config(TINY.replace(train_iterations=270_000), b) for b in (10_000, 30_000, 90_000, 270_000)]
+    costs = [model.predict(c) for c in configs]
+    full = plan(configs, model, cap_s=math.inf)
+    assert full is not None and full.budgets == (10_000, 30_000, 90_000, 270_000)
+    capped = plan(configs, model, cap_s=sum(costs[:2]) + 1e-9)
+    assert capped is not None and capped.budgets == (10_000, 30_000)
+    assert plan(configs, model, cap_s=costs[0] / 2) is None
+    assert plan(configs, model, cap_s=math.inf, top=1).budgets == (10_000, 30_000)  # type: ignore[union-attr]
+
+
+# -- warm start, resume ---------------------------------------------------------------------
+
+
+def test_crowd_prior_lands_inside_the_space_and_claims_are_not_values(tmp_path: Path) -> None:
+    from dashboards.crowd_prior import prior_settings
+
+    spec = load_spec(CONFIGS / "quick.toml").with_overrides(storage=str(tmp_path / "j.log"))
+    storages = open_storage(spec.study.storage, spec.study.name)
+    prior = prior_settings("v2")
+    assert len(prior) >= 10 and prior == sorted(prior, key=lambda p: -p.claimed)
+    assert len({p.source for p in prior}) == len(prior)
+    driver = Driver(spec, storages, warm_configs=tuple(WarmConfig(p.source, p.config) for p in prior))
+    study = driver.open_study()
+    driver._warm_start()  # noqa: SLF001 - what run() does first
+    waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    assert 10 <= len(waiting) <= len(prior) and any("skipped" in n for n in driver.warm_notes)
+    claims = {p.claimed for p in prior}
+    for t in waiting:
+        params = t.system_attrs["fixed_params"]
+        assert not space.outside(spec, params), t.user_attrs[WARM_ATTR]
+        assert t.value is None and not claims & {v for v in t.user_attrs.values() if isinstance(v, float)}
+    driver._warm_start()  # once per study: a resumed run enqueues nothing more  # noqa: SLF001
+    assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == len(waiting)
+
+
+def test_clip_params_says_what_moved() -> None:
+    spec = load_spec(CONFIGS / "paper.toml")
+    params = space.encode(spec, TrainConfig(lanes_side=50, layers="fc:1:softmax"))
+    clipped, notes = clip_params(spec, params)
+    assert clipped["lanes_side"] == 10 and clipped["neurons_0"] == 2 and clipped["activation_0"] == "relu"
+    assert any(n.startswith("lanes_side 50 → 10") for n in notes) and not space.outside(spec, clipped)
+
+
+def test_resuming_with_a_changed_space_is_refused(tmp_path: Path) -> None:
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    Driver(spec, open_storage(spec.study.storage, spec.study.name)).open_study()
+    Driver(spec, open_storage(spec.study.storage, spec.study.name)).open_study()  # the same spec resumes
+    data = spec.to_dict()
+    data["space"]["lanes_side"] = {"low": 0, "high": 3, "log": False}
+    changed = parse_spec(data, source="changed.toml")
+    with pytest.raises(SpecError, match=r"\[space\] lanes_side: the study 'lad' was created with") as err:
+        Driver(changed, open_storage(spec.study.storage, spec.study.name)).open_study()
+    assert "\n" not in str(err.value)
+
+
+# -- the seed race ----------------------------------------------------------------------------
+
+
+def test_race_entrants_are_distinct_configurations() -> None:
+    a, b = {"x": 1}, {"x": 2}
+    field = racing.entrants([(0, 70.0, a), (1, 75.0, a), (2, 72.0, b), (3, math.nan, b)], 3)
+    assert [e.number for e in field] == [1, 2]
+
+
+def test_race_halves_the_field_each_round() -> None:
+    field = [10, 11, 12, 13]
+    runs, over = racing.next_runs(field, {}, set(), 1)
+    assert not over and [(r.race_of, r.seed_index) for r in runs] == [(10, 0), (11, 0), (12, 0), (13, 0)]
+    results: dict[tuple[int, int], float | None] = {(10, 0): 70.0, (11, 0): 74.0, (12, 0): None, (13, 0): 72.0}
+    runs, over = racing.next_runs(field, results, set(results), 1)
+    assert not over and sorted((r.race_of, r.seed_index) for r in runs) == [(11, 1), (13, 1)]  # the better half
+    results.update({(11, 1): 71.0, (13, 1): 75.0})
+    runs, over = racing.next_runs(field, results, set(results), 1)
+    assert over and runs == []
+    top = racing.standings(field, results)[0]
+    assert top.number == 13 and top.scores == (72.0, 75.0) and top.mean == 73.5  # the selecting seed left out
+    assert racing.race_seed(0, 1) == racing.race_seed(0, 1) != racing.race_seed(0, 2)

@@ -1,0 +1,112 @@
+"""A ladder smoke study launched for real (Ray, journal): rungs reported at B_r/B_0, the seed race, ``best``.
+
+One ~1-minute launch: trials climb a 2-rung ladder under successive halving, the trial budget runs
+out, then the race retrains the best configurations with the same fresh seeds; ``autotune best``
+reports the best single net and the best configuration by its fresh-seed mean.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import optuna
+import pytest
+
+from tests.test_search_launch import finish, launch, load, tagged_processes
+
+SPEC = """
+[study]
+name = "race"
+ruleset = "v2"
+sampler = "tpe"
+pruner = "sha"
+n_trials = 5
+timeout_s = 240
+seed = 0
+trial_timeout_s = 60
+max_trial_cost_s = 60
+sampler_startup_trials = 2
+race_fraction = 0.5
+race_configs = 3
+race_seeds = 1
+
+[ladder]
+rungs = [500, 1500]
+
+[fixed]
+otherAgents = 2
+temporal_window = 0
+experience_size = 1000
+batch_size = 16
+
+[space]
+lanes_side = { low = 0, high = 2 }
+patches_ahead = { low = 2, high = 8 }
+learning_rate = { low = 1e-4, high = 1e-2, log = true }
+learning_steps_burnin_fraction = { low = 0.01, high = 0.3, log = true }
+method = { choices = ["sgd", "adagrad"] }
+n_layers = { low = 0, high = 2 }
+neurons = { low = 2, high = 16, log = true }
+activation = { choices = ["relu", "tanh"] }
+
+[evaluation]
+final_protocol = "v2-official"
+
+[resources]
+workers = 2
+"""
+
+
+@pytest.mark.slow
+def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
+    spec = tmp_path / "race.toml"
+    spec.write_text(SPEC)
+    code, out, err = finish(launch(tmp_path, str(spec), tag="race-" + tmp_path.name), timeout=400)
+    assert code == 0, err
+    study = load(tmp_path, "race")
+    trials = study.get_trials(deepcopy=False)
+    original = [t for t in trials if "race_of" not in t.user_attrs and "retry_of" not in t.user_attrs]
+    assert len(original) == 5
+    for t in original:
+        assert set(t.intermediate_values) <= {1, 3}  # rung r reported at step B_r / B_0
+        assert t.user_attrs["predicted_cost_s"] > 0 and t.user_attrs["refused_draws"] >= 0
+        if t.state == optuna.trial.TrialState.COMPLETE:
+            assert [r["budget"] for r in t.user_attrs["rungs"]] == [500, 1500]
+            assert t.value == t.user_attrs["rungs"][-1]["score"]
+            assert set(t.user_attrs["artifact_rung_nets"]) == {"500", "1500"}
+    field = study.user_attrs["race_field"]
+    assert 1 <= len(field) <= 3
+    race = [t for t in trials if "race_of" in t.user_attrs]
+    assert race and {t.user_attrs["race_of"] for t in race} <= set(field)
+    by_seed: dict[int, set[int]] = {}
+    for t in race:  # the same fresh seed for every configuration of a round, never a selecting trial's seed
+        by_seed.setdefault(t.user_attrs["race_seed"], set()).add(t.user_attrs["seed"])
+        assert t.user_attrs["seed"] not in {o.user_attrs["seed"] for o in original}
+        assert t.user_attrs["config"] == trials[t.user_attrs["race_of"]].user_attrs["config"]
+        assert t.state == optuna.trial.TrialState.COMPLETE, t.user_attrs.get("cause")
+    assert all(len(seeds) == 1 for seeds in by_seed.values())
+    expected, n = 0, len(field)  # successive halving: every survivor of a round runs, until one is left
+    while True:
+        expected += n
+        if n <= 1:
+            break
+        n = -(-n // 2)
+        if n == 1:
+            break
+    assert sorted(by_seed)[0] == 0 and len(race) == expected
+    assert tagged_processes("race-" + tmp_path.name) == []
+
+    best = subprocess.run(
+        [sys.executable, "-m", "autotune.cli", "best", "race", "--storage", str(tmp_path / "runs/race/journal.log"),
+         "--json"], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert best.returncode == 0, best.stderr
+    record = json.loads(best.stdout)
+    winner = record["race"]["winner"]
+    assert winner["trial"] in field and winner["n"] >= 1
+    mine = [t.value for t in race if t.user_attrs["race_of"] == winner["trial"]]
+    assert winner["mean"] == pytest.approx(sum(mine) / len(mine))
+    assert record["value"] == max(t.value for t in trials if t.value is not None and t.state.name == "COMPLETE")

@@ -253,3 +253,31 @@ def test_race_halves_the_field_each_round() -> None:
     top = racing.standings(field, results)[0]
     assert top.number == 13 and top.scores == (72.0, 75.0) and top.mean == 73.5  # the selecting seed left out
     assert racing.race_seed(0, 1) == racing.race_seed(0, 1) != racing.race_seed(0, 2)
+
+
+def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
+    """--warm-start STUDY: the earlier study's COMPLETE trials enter the sampler's history, once, using no budget."""
+    from autotune.search.gate import distributions
+
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    storages = open_storage(spec.study.storage, spec.study.name)
+    dists = distributions(spec)
+    earlier = optuna.create_study(study_name="earlier", storage=storages.storage, direction="maximize")
+    params = {name: (d.choices[0] if isinstance(d, optuna.distributions.CategoricalDistribution) else d.low)
+              for name, d in dists.items()}  # fmt: skip
+    earlier.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=71.5,
+                                                user_attrs={"config": {"x": 1}, "seed": 9}))  # fmt: skip
+    earlier.add_trial(optuna.trial.create_trial(state=optuna.trial.TrialState.FAIL))
+    warm = spec.with_overrides(warm_start="earlier")
+    driver = Driver(warm, storages)
+    study = driver.open_study()
+    driver._warm_start()  # noqa: SLF001
+    driver._warm_start()  # noqa: SLF001 - once per study
+    copied = study.get_trials()
+    assert len(copied) == 1 and copied[0].value == 71.5 and copied[0].user_attrs["copied_from"] == "earlier:0"
+    driver._refresh_counts()  # noqa: SLF001
+    assert driver.counts.started == 0 and driver.counts.complete == 0  # history, not this study's trials
+    with pytest.raises(SpecError, match="--warm-start nosuch: no such study"):
+        d = Driver(spec.with_overrides(warm_start="nosuch", name="other"), storages)
+        d.open_study()
+        d._warm_start()  # noqa: SLF001

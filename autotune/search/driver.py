@@ -248,6 +248,7 @@ class Driver:
         self.warm_configs = warm_configs
         self.cost_model = CostModel.prior()
         self._fitted_on = -1
+        self._observed: dict[int, list[Observation]] = {}
         self._race_over = False
         self._wall0 = 0.0
         self.warm_notes: list[str] = []
@@ -340,21 +341,9 @@ class Driver:
             return self.cost_model
         obs = []
         for t in trials:
-            cfg = t.user_attrs.get(CONFIG_ATTR)
-            if not isinstance(cfg, dict) or COPIED_ATTR in t.user_attrs:
-                continue
-            try:
-                top = TrainConfig.from_mapping(cfg)
-            except ConfigError:
-                continue
-            for rung in t.user_attrs.get("rungs") or ():
-                seconds = rung.get("seconds")
-                if isinstance(seconds, (int, float)):
-                    obs.append(Observation(tuple(features(rung_config(top, int(rung["budget"])))), float(seconds)))
-            if not t.user_attrs.get("rungs") and t.state == TrialState.COMPLETE:
-                wall = t.user_attrs.get("trial_wall_seconds")
-                if isinstance(wall, (int, float)):
-                    obs.append(Observation(tuple(features(top)), float(wall)))
+            if t.number not in self._observed:
+                self._observed[t.number] = _observations(t)
+            obs.extend(self._observed[t.number])
         self.cost_model = CostModel.prior().fit(obs)
         self._fitted_on = len(trials)
         return self.cost_model
@@ -783,6 +772,27 @@ class Driver:
         self._last_beat = time.perf_counter()
         for run in self._running.values():
             self._beat(run.trial)
+
+
+def _observations(t: FrozenTrial) -> list[Observation]:
+    """A finished trial's rungs as cost observations (work terms, wall seconds); a single training as one."""
+    cfg = t.user_attrs.get(CONFIG_ATTR)
+    if not isinstance(cfg, dict) or COPIED_ATTR in t.user_attrs:
+        return []
+    try:
+        top = TrainConfig.from_mapping(cfg)
+    except ConfigError:
+        return []
+    out = []
+    for rung in t.user_attrs.get("rungs") or ():
+        seconds = rung.get("seconds")
+        if isinstance(seconds, (int, float)):
+            out.append(Observation(tuple(features(rung_config(top, int(rung["budget"])))), float(seconds)))
+    if not t.user_attrs.get("rungs") and t.state == TrialState.COMPLETE:
+        wall = t.user_attrs.get("trial_wall_seconds")
+        if isinstance(wall, (int, float)):
+            out.append(Observation(tuple(features(top)), float(wall)))
+    return out
 
 
 class _Refused(Exception):

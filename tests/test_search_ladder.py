@@ -78,7 +78,7 @@ def test_a_rung_is_a_standalone_training_exactly() -> None:
     reports: list[tuple[int, float]] = []
     outcome = run_trial(
         TrialTask(number=0, config=TINY.to_mapping(), seed=7, rungs=(400, 1200)),
-        lambda step, frames, score: reports.append((step, score)) is not None,  # never prune
+        lambda step, frames, score: bool(reports.append((step, score))),  # type: ignore[func-returns-value]
     )
     assert outcome.state == COMPLETE, outcome.cause
     rungs = outcome.attrs["rungs"]
@@ -263,7 +263,8 @@ def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
     storages = open_storage(spec.study.storage, spec.study.name)
     dists = distributions(spec)
     earlier = optuna.create_study(study_name="earlier", storage=storages.storage, direction="maximize")
-    params = {name: (d.choices[0] if isinstance(d, optuna.distributions.CategoricalDistribution) else d.low)
+    params = {name: (d.choices[0] if isinstance(d, optuna.distributions.CategoricalDistribution)
+                     else d.low)  # type: ignore[attr-defined]
               for name, d in dists.items()}  # fmt: skip
     earlier.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=71.5,
                                                 user_attrs={"config": {"x": 1}, "seed": 9}))  # fmt: skip

@@ -107,6 +107,6 @@ def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
     record = json.loads(best.stdout)
     winner = record["race"]["winner"]
     assert winner["trial"] in field and winner["n"] >= 1
-    mine = [t.value for t in race if t.user_attrs["race_of"] == winner["trial"]]
+    mine = [float(t.value or 0.0) for t in race if t.user_attrs["race_of"] == winner["trial"]]
     assert winner["mean"] == pytest.approx(sum(mine) / len(mine))
     assert record["value"] == max(t.value for t in trials if t.value is not None and t.state.name == "COMPLETE")

@@ -717,9 +717,9 @@ class Driver:
         if outcome.rung_nets:  # every finished rung's net, pruned trials included
             ids = {}
             with tempfile.TemporaryDirectory() as tmp:
-                for budget, text in sorted(outcome.rung_nets.items()):
+                for budget, net_text in sorted(outcome.rung_nets.items()):
                     path = Path(tmp) / f"net_rung_{budget}.json"
-                    path.write_text(text)
+                    path.write_text(net_text)
                     ids[str(budget)] = optuna.artifacts.upload_artifact(
                         artifact_store=self.storages.artifacts, file_path=str(path), study_or_trial=trial,
                         mimetype="application/json",

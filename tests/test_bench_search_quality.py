@@ -1,0 +1,287 @@
+"""bench/search_quality.py's machinery in seconds: the statistics and plot data as values, the spec copy,
+the plain loop's space, one plain-loop worker and a calibration set on tiny trainings, the worker pool."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import math
+import sys
+import time
+import tomllib
+import types
+from pathlib import Path
+from typing import Any
+
+import optuna
+import pytest
+from optuna.storages import JournalStorage
+from optuna.storages.journal import JournalFileBackend
+
+from autotune import TrainConfig
+from autotune.search.spec import load_spec, parse_spec
+from tests.conftest import ROOT
+
+# bench/ is scripts, not a package: load the file as a module (registered first, as dataclasses need)
+_SPEC = importlib.util.spec_from_file_location("bench_search_quality", ROOT / "bench" / "search_quality.py")
+assert _SPEC is not None and _SPEC.loader is not None
+sq: Any = sys.modules.setdefault("bench_search_quality", importlib.util.module_from_spec(_SPEC))
+_SPEC.loader.exec_module(sq)
+
+PAPER = ROOT / "study_configs" / "paper.toml"
+SMOKE = ROOT / "study_configs" / "smoke.toml"
+
+
+def row(number: int, value: float | None, end_s: float | None, **attrs: Any) -> Any:
+    state = attrs.pop("state", "COMPLETE" if value is not None else "PRUNED")
+    return sq.TrialRow(number=number, state=state, value=value, end_s=end_s, **attrs)
+
+
+# -- the spec copy ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("path", [PAPER, SMOKE])
+def test_study_copy_round_trips_and_is_a_valid_spec(path: Path) -> None:
+    data = tomllib.loads(path.read_text())
+    copy = sq.study_copy(data, "sq-cold-s2", 2, 600.0)
+    assert tomllib.loads(sq.toml_dumps(copy)) == copy
+    spec = parse_spec(tomllib.loads(sq.toml_dumps(copy)))
+    assert (spec.study.name, spec.study.seed, spec.study.timeout_s, spec.study.n_trials) == ("sq-cold-s2", 2, 600, None)
+    assert spec.space == load_spec(path).space and spec.fixed == load_spec(path).fixed
+    assert data["study"]["name"] != "sq-cold-s2"  # the original is not touched
+
+
+def test_toml_values() -> None:
+    data = {"t": {"a": 1e-8, "b": -math.inf, "c": True, "d": 'x"y', "e": ["p", 1], "f": {"low": 1, "log": False}}}
+    assert tomllib.loads(sq.toml_dumps(data)) == data
+    with pytest.raises(TypeError):
+        sq.toml_dumps({"t": {"a": object()}})
+
+
+# -- the plain loop's space -----------------------------------------------------------------------
+
+
+def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
+    spec = load_spec(PAPER)
+    dims, notes = sq.plain_space(spec)
+    assert notes == ()
+    assert {d.name for d in dims} == {d.name for d in spec.space}
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
+    layer_counts = set()
+    for _ in range(40):
+        params = sq.sample_plain(study.ask(), dims)
+        n = params["n_layers"]
+        layer_counts.add(n)
+        assert {k for k in params if k.startswith(("neurons_", "activation_"))} == {
+            f"{p}_{i}" for p in ("neurons", "activation") for i in range(n)
+        }
+        config = sq.decode_plain(spec, params)
+        assert len(config.layers) == n
+        assert config.start_learn_threshold < config.experience_size
+        assert config.gamma == pytest.approx(1 - params["one_minus_gamma"])
+    assert len(layer_counts) > 3
+
+
+def test_plain_space_leaves_out_service_only_names_and_keeps_a_train_length() -> None:
+    spec = load_spec(SMOKE)
+    extra = types.SimpleNamespace(name="burnin_fraction", kind="float", low=0.0, high=1.0, log=False, step=None)
+    ladder_like = types.SimpleNamespace(space=(*spec.space, extra), fixed_values={}, ruleset="v2")
+    dims, notes = sq.plain_space(ladder_like)
+    names = [d.name for d in dims]
+    assert "burnin_fraction" not in names and names[-1] == "train_iterations"
+    assert any("burnin_fraction" in n for n in notes) and any("train_iterations" in n for n in notes)
+
+
+# -- trial records → figures ------------------------------------------------------------------------
+
+
+def test_rows_from_trials_reads_the_contract_attrs() -> None:
+    study = optuna.create_study(direction="maximize")
+    t0 = time.time()
+    attrs = {"config": {"a": 1}, "seed": 5, "trial_wall_seconds": 2.0, "predicted_cost_s": 3.0, "warm_start": "crowd:x"}
+    study.add_trial(optuna.trial.create_trial(value=70.0, user_attrs=attrs))
+    study.add_trial(optuna.trial.create_trial(state=optuna.trial.TrialState.PRUNED, user_attrs={"cause": "timeout"}))
+    rows = sq.rows_from_trials(study.get_trials(), t0)
+    assert [r.state for r in rows] == ["COMPLETE", "PRUNED"]
+    assert (rows[0].value, rows[0].seed, rows[0].wall_s, rows[0].predicted_cost_s) == (70.0, 5, 2.0, 3.0)
+    assert rows[0].warm_start == "crowd:x" and rows[0].config == {"a": 1} and rows[1].cause == "timeout"
+    assert rows[1].value is None and all(0 <= r.end_s < 60 for r in rows)
+
+
+def test_best_single_and_the_best_not_enqueued() -> None:
+    rows = [
+        row(0, 75.0, 30, warm_start="crowd:a"),
+        row(1, 72.0, 100),
+        row(2, 74.0, 700),
+        row(3, None, 50),
+        row(4, 80.0, None, state="RUNNING"),
+    ]
+    assert sq.best_single(rows, 20) is None
+    assert sq.best_single(rows, 600).number == 0
+    assert sq.best_single(rows, 600, enqueued=False).number == 1
+    assert sq.best_single(rows, 3600, enqueued=False).number == 2
+    picks = sq.checkpoint_picks(rows, [1, 10, 15])
+    assert [p["best"] for p in picks] == [75.0, 75.0, 75.0]
+    assert [p["best_not_enqueued"] for p in picks] == [None, 72.0, 74.0]
+    assert [p["finished"] for p in picks] == [2, 3, 4]
+
+
+def test_chosen_trial_prefers_the_raced_configuration() -> None:
+    rows = [row(0, 76.0, 10, config={"c": 0}), row(1, 74.0, 20, config={"c": 1})]
+    assert sq.chosen_trial(rows, 60).number == 0  # no race yet: the best single net's configuration
+    rows += [
+        row(2, 71.0, 30, race_of=0),
+        row(3, 73.0, 31, race_of=1),
+        row(4, 72.0, 40, race_of=0),
+        row(5, 73.5, 41, race_of=1),
+        row(6, 79.0, 50, race_of=0),
+    ]
+    assert sq.chosen_trial(rows, 35).number == 1  # one race run each: 73 beats 71
+    assert sq.chosen_trial(rows, 45).number == 1  # two each: 73.25 beats 71.5
+    assert sq.chosen_trial(rows, 60).number == 0  # trial 0 survived to a third round
+
+
+def test_running_best_and_the_run_figures() -> None:
+    rows = [
+        row(0, 70.0, 60, wall_s=50.0, predicted_cost_s=40.0),
+        row(1, 69.0, 90, wall_s=30.0, predicted_cost_s=60.0),
+        row(2, None, 120, wall_s=20.0, cause="timeout: trial wall time exceeded", refused_draws=3),
+        row(3, 72.0, 180, wall_s=10.0, refused_draws=1),
+        row(4, 71.0, 30, wall_s=100.0, warm_start="crowd:a", predicted_cost_s=1.0),
+    ]
+    assert sq.running_best(rows) == [(0.5, 71.0), (3.0, 72.0)]
+    err, n = sq.cost_model_error(rows)
+    assert n == 3 and err == pytest.approx(sorted([0.2, 1.0, 0.99])[1])
+    assert sq.limit_share(rows, 2 * 100.0) == pytest.approx(0.1)
+    assert sq.refused_share(rows) == pytest.approx(4 / (4 + 4))
+    assert sq.refused_share(rows[:2]) is None
+    assert sq.worst_overrun(rows, 50.0) == pytest.approx(2.0)
+    figures = sq.run_figures(rows, 100.0, 2, 50.0)
+    assert figures["states"] == {"COMPLETE": 4, "PRUNED": 1, "FAIL": 0, "RUNNING": 0}
+
+
+def test_arm_checkpoints_are_medians_over_runs() -> None:
+    def run(best: float | None, mean: float | None) -> dict[str, Any]:
+        return {"checkpoints": [{"best": best, "best_not_enqueued": best, "reseed_mean": mean}]}
+
+    cps = sq.arm_checkpoints([run(70.0, 60.0), run(74.0, None), run(None, 62.0), run(72.0, 64.0)], [10])
+    assert cps[0]["best_median"] == 72.0 and cps[0]["reseed_mean_median"] == 62.0 and cps[0]["runs"] == 4
+    assert sq.median([None, None]) is None
+    assert sq.mean_sd([1.0, 3.0]) == (2.0, pytest.approx(math.sqrt(2))) and sq.mean_sd([]) == (None, None)
+
+
+def test_reseed_scores_keep_the_unscored_runs_and_why() -> None:
+    cache = {
+        "k|1": {"state": "complete", "value": 70.0, "seconds": 5.0},
+        "k|2": {"state": "pruned", "value": None, "cause": "diverged: loss", "seconds": 2.0},
+        "k|3": {"state": "complete", "value": 74.0, "seconds": 5.0},
+    }
+    out = sq.reseed_scores("k", [1, 2, 3], cache)
+    assert (out["reseed_mean"], out["reseed_n"], out["reseed_unscored"]) == (72.0, 2, ["diverged: loss"])
+    assert out["reseed_train_s"] == 12.0
+
+
+def test_rung_correlations() -> None:
+    def rungs(*scores: float | None) -> list[dict[str, Any]]:
+        return [{"budget": b, "score": s} for b, s in zip((10, 30, 90), scores, strict=False)]
+
+    sets = [rungs(50, 60, 70), rungs(55, 65, 72), rungs(52, 58, 71), rungs(40, 50), rungs(60, None), rungs(45)]
+    out = {c["budget"]: c for c in sq.rung_correlations(sets)}
+    assert out[10]["n"] == 4 and out[30]["n"] == 3  # rungs(60, None) and rungs(45) have no pair
+    assert out[10]["spearman"] == pytest.approx(1.0)  # 50, 55, 52, 40 against tops 70, 72, 71, 50: same order
+    assert out[30]["spearman"] == pytest.approx(0.5)  # 60, 65, 58 against 70, 72, 71: rank differences 1, 0, 1
+    assert sq.rung_correlations([rungs(1, 2, 3), rungs(2, 3, 4)])[0]["spearman"] is None  # n < 3
+
+
+def test_plot_data_and_figure() -> None:
+    result: dict[str, Any] = {
+        "minutes": [10, 30],
+        "arms": {
+            "cold": {"runs": [{"study_seed": 0, "wall_s": 1800.0, "running_best": [[2.0, 70.0], [12.0, 73.0]]}]},
+            "warm": {"skipped": "no --warm-start"},
+            "plain": {"runs": [{"study_seed": 1, "wall_s": 1800.0, "running_best": []}]},
+        },
+        "reference": {"id": "dt-x", "reseed_mean": 71.5, "reseed_sd": 1.0, "reseed_n": 3},
+        "fresh_seeds": [1, 2, 3],
+    }
+    data = sq.plot_data(result)
+    assert data["traces"] == [
+        {"arm": "cold", "name": "cold (study seed 0)", "x": [2.0, 12.0, 30.0], "y": [70.0, 73.0, 73.0]}
+    ]
+    fig = sq.draw(data)
+    assert len(fig.data) == 1 and list(fig.data[0].y) == [70.0, 73.0, 73.0]
+    assert len(fig.layout.shapes) == 3  # the two checkpoints and the reference's mean
+    table = sq.format_table({**result, "arms": {"warm": result["arms"]["warm"]}})
+    assert "warm    skipped: no --warm-start" in table
+    assert "reference dt-x: mean 71.50 ± 1.00 over seeds [1, 2, 3] (n=3)" in table
+
+
+# -- the workers ------------------------------------------------------------------------------------
+
+
+def test_pool_round_trip_and_deadline() -> None:
+    with sq.Pool(2) as pool:
+        out = pool.run([{"kind": "echo", "payload": i} for i in range(3)])
+        assert [o["echo"] for o in out] == [0, 1, 2] and len({o["pid"] for o in out}) == 2
+        assert "error" in pool.run([{"kind": "nope"}])[0]
+    with sq.Pool(1) as pool:
+        t = time.time()
+        out = pool.run([{"kind": "echo", "sleep_s": 60}], deadline=time.time() + 1.0)
+        assert "killed" in out[0]["error"] and time.time() - t < 20
+
+
+def _smoke_copy(tmp_path: Path, **study: Any) -> Path:
+    data = sq.study_copy(tomllib.loads(SMOKE.read_text()), "smoke-copy", 0, 60.0)
+    data["study"].update(study)
+    path = tmp_path / "smoke.toml"
+    path.write_text(sq.toml_dumps(data))
+    return path
+
+
+def test_plain_loop_worker_records_the_contract_and_stops_at_the_trial_limit(tmp_path: Path) -> None:
+    storage = JournalStorage(JournalFileBackend(str(tmp_path / "j.log")))
+    for name in ("ok", "limit"):
+        optuna.create_study(study_name=name, storage=storage, direction="maximize")
+    job = {"kind": "loop", "storage": str(tmp_path / "j.log"), "study_seed": 0, "worker": 0, "prune": True}
+    t0 = time.time()
+    out = sq.loop_job({**job, "space": str(SMOKE), "study": "ok", "deadline": t0 + 120, "n_trials": 2})
+    assert out["trials"] == 2
+    tiny = _smoke_copy(tmp_path, trial_timeout_s=0.001)
+    sq.loop_job({**job, "space": str(tiny), "study": "limit", "deadline": time.time() + 120, "n_trials": 1})
+    rows = sq.read_rows(tmp_path / "j.log", "ok", t0)
+    assert [r.state for r in rows] == ["COMPLETE", "COMPLETE"]
+    for r in rows:
+        assert 30 < r.value < 90 and r.wall_s > 0 and isinstance(r.seed, int)
+        assert TrainConfig.from_mapping(r.config).train_iterations == 2000
+    assert rows[0].seed != rows[1].seed
+    (limited,) = sq.read_rows(tmp_path / "j.log", "limit", t0)
+    assert limited.state == "PRUNED" and limited.cause.startswith("timeout: trial wall time exceeded")
+    assert sq.limit_share([limited], 1.0) > 0
+
+
+def test_calibration_job_trains_every_rung_that_fits(tmp_path: Path) -> None:
+    spec = load_spec(SMOKE)
+    config = sq.decode_plain(spec, {"lanes_side": 1, "patches_ahead": 4, "patches_behind": 0, "learning_rate": 1e-3,
+                                    "one_minus_gamma": 0.1, "n_layers": 0})  # fmt: skip
+
+    def ladder(*budgets: int) -> Any:
+        rung = lambda c, b: dataclasses.replace(c, train_iterations=b)  # noqa: E731
+        return types.SimpleNamespace(LADDER=budgets, rung_config=rung)
+
+    job = {"config": config.to_mapping(), "seed": 7, "cap_s": 1e6}
+    out = sq.calibration_job(job, ladder(400, 800))
+    assert out["refused"] is None and [r["budget"] for r in out["rungs"]] == [400, 800]
+    assert all(r["state"] == "complete" and r["score"] > 0 and r["seconds"] > 0 for r in out["rungs"])
+    out = sq.calibration_job(job, ladder(400, 10**12))  # the top rung would take years: refused after rung 0
+    assert len(out["rungs"]) == 1 and "only rung 0 fits" in out["refused"]
+
+
+def test_reference_and_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
+    ref = sq.reference_config(sq.REFERENCE_ID)
+    assert TrainConfig.from_mapping(ref).ruleset == "v2" and ref["layers"] == "fc:384:tanh"
+    with pytest.raises(sq.BenchError):
+        sq.reference_config("dt-nobody")
+    for argv in (["--arms", "plain,fancy"], ["--minutes", "0"], ["--space", "nope"], ["--study-seeds", "a"]):
+        assert sq.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and err.startswith(f"{argv[0]} ")

@@ -1,8 +1,9 @@
 """Search quality: what each way of searching finds in the same wall time on the same cores.
 
-    python bench/search_quality.py --minutes 10,30,60                       # every arm, paper.toml, ~4 h + reseeds
-    python bench/search_quality.py --minutes 10 --arms plain,cold --study-seeds 0,1,2
-    python bench/search_quality.py --minutes 0.5 --arms plain,random --space smoke --calibration 0   # plumbing
+    python bench/search_quality.py --minutes 10,30,60 --calibration 0     # every arm on paper.toml: 4 h + reseeding
+    python bench/search_quality.py --minutes 10 --arms plain,cold --study-seeds 0,1,2 --calibration 0
+    python bench/search_quality.py --arms none --calibration 30            # the rung calibration alone
+    python bench/search_quality.py --minutes 0.5 --arms plain,random --space smoke --reference none   # plumbing
 
 The arms run one after another, each with ``--workers`` processes (one core each) for the longest
 of ``--minutes``, timed from the arm's first command (process start, compilation and Ray start count):
@@ -10,9 +11,11 @@ of ``--minutes``, timed from the arm's first command (process start, compilation
 * ``plain``  — the loop a user writes in ten minutes: Optuna's default TPE + MedianPruner around
   ``autotune.learner.train`` (the quick scores its reporter gives, at the spec's [evaluation]
   report_points / quick_runs / quick_frames — train's own defaults in paper.toml), define-by-run over
-  the spec's [space] (``n_layers``, then ``neurons_i`` / ``activation_i`` for i < n_layers), scored with
-  ``evaluate_official``; ``--workers`` processes share a JournalStorage study; a trial past the spec's
-  ``trial_timeout_s`` is stopped through ``train``'s progress hook and pruned (cause ``timeout: …``);
+  the spec's [space] (``n_layers``, then ``neurons_i`` / ``activation_i`` for i < n_layers; in a ladder
+  spec train_iterations log-uniform over the ladder's range, ``*_fraction`` settings × that length, the
+  threshold capped only below the replay memory), scored with ``evaluate_official``; ``--workers``
+  processes share a JournalStorage study; a trial past the spec's ``trial_timeout_s`` is stopped through
+  ``train``'s progress hook and pruned (cause ``timeout: …``), one still running at the arm's end too;
 * ``random`` — the same loop with RandomSampler, no pruner and no quick scores;
 * ``cold``   — ``autotune launch SPEC`` (the service, no crowd knowledge);
 * ``warm``   — ``autotune launch SPEC --warm-start crowd`` (skipped, saying so, where launch lacks it).
@@ -31,13 +34,14 @@ COMPLETE trials that stored ``predicted_cost_s`` before training; the share of w
 the arm's wall) spent in trials stopped by a limit (cause ``timeout…``); the worst trial wall time /
 ``trial_timeout_s``; the share of sampler draws refused (``refused_draws``), where stored.
 
-``--calibration N`` (needs ``autotune.search.ladder``: ``LADDER``, ``rung_config(config, budget)``):
-N configurations drawn from the space (seeded), each trained through the ladder's rungs unpruned from
-one seed — rung r a fresh complete training at budget B_r — while the trial's estimated cost (rungs
-so far + the next one extrapolated linearly in the budget from the last) stays under the cap
-(``--calibration-cap``, default [study] max_trial_cost_s, else trial_timeout_s); a draw that fits
-fewer than two rungs is refused. Reported: the Spearman rank correlation of each rung's score with
-the configuration's top rung's.
+``--calibration N`` (a spec with a [ladder]): N configurations drawn from the service's own space
+(``space.sample`` with a seeded RandomSampler, ``space.to_config`` per rung, as the driver builds
+them), each with the rungs whose cumulative cost the prior cost model (``cost.plan``) puts under the
+cap (``--calibration-cap``, default the spec's max_trial_cost_s, else trial_timeout_s) — a draw with
+fewer than two such rungs is refused before any training — then trained through all of them unpruned
+by ``run_trial`` (rung r a fresh complete training at B_r from the configuration's seed, officially
+scored). Reported: the Spearman rank correlation of each rung's score with the top rung's, and the
+prior cost model's median error on those rungs.
 
 Output in ``--out``/<time>/: the studies (journal per run), ``result.json`` (rewritten after every
 stage), ``search_quality.html`` (running best vs wall minutes, self-contained); on stdout a table
@@ -49,8 +53,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as dt
-import importlib
-import importlib.util
 import json
 import math
 import os
@@ -75,8 +77,9 @@ SEEDED_ARMS = ("plain", "cold")  # --study-seeds repeats these; the others run w
 FRESH_SEED0 = 900_001  # fresh seeds FRESH_SEED0 + i, the same for every arm (no study draws them)
 REFERENCE_ID = "dt-gsurma-deep-traffic-v00"
 LAYOUT = ("n_layers", "neurons", "activation")
-# train length the plain loop searches when the spec's [space] leaves it to a budget ladder (paper.toml's old range)
+# train length the plain loop searches when the spec has neither it nor a [ladder] (paper.toml's old range)
 FALLBACK_ITERATIONS = {"low": 5_000, "high": 1_000_000, "log": True}
+FRACTION = "_fraction"  # [space] names <setting>_fraction: that setting as a fraction of train_iterations
 FINISHED = ("COMPLETE", "PRUNED", "FAIL")
 LIMIT_CAUSE = "timeout"  # causes of trials stopped by a wall-time limit start with this
 DEADLINE_CAUSE = "deadline: the arm's wall budget ended"
@@ -156,21 +159,26 @@ class PlainDim:
 
 
 def plain_space(spec: Any) -> tuple[tuple[PlainDim, ...], tuple[str, ...]]:
-    """The [space] entries that are training settings (or the layout), and notes on what was left out/added."""
+    """The [space] entries that are training settings, their ``_fraction`` forms or the layout, plus the train
+    length (a ladder study's: searched over the ladder's range), and notes on what was left out or added."""
     from autotune import TrainConfig
 
     settings = {f.name for f in dataclasses.fields(TrainConfig)}
     dims: list[PlainDim] = []
     notes: list[str] = []
     for d in spec.space:
-        if d.name in settings or d.name in LAYOUT or d.name == "one_minus_gamma":
+        base = d.name.removesuffix(FRACTION)
+        if base in settings or d.name in LAYOUT or d.name == "one_minus_gamma":
             dims.append(PlainDim(d.name, d.kind, d.low, d.high, bool(d.log), d.step, tuple(d.choices)))
         else:
             notes.append(f"plain loop: [space] {d.name} is not a training setting; not sampled")
     names = {d.name for d in dims}
     if "train_iterations" not in names and "train_iterations" not in spec.fixed_values:
-        dims.append(PlainDim("train_iterations", "int", **FALLBACK_ITERATIONS))  # type: ignore[arg-type]
-        notes.append(f"plain loop: train_iterations not in [space]; sampled from {FALLBACK_ITERATIONS}")
+        ladder = tuple(getattr(spec, "ladder", ()) or ())
+        rng = {"low": ladder[0], "high": ladder[-1], "log": True} if ladder else FALLBACK_ITERATIONS
+        dims.insert(0, PlainDim("train_iterations", "int", **rng))  # type: ignore[arg-type]
+        where = "the [ladder]'s range" if ladder else "paper.toml's pre-ladder range"
+        notes.append(f"plain loop: train_iterations sampled from {where} {rng['low']:,}–{rng['high']:,} (log)")
     return tuple(dims), tuple(notes)
 
 
@@ -199,15 +207,22 @@ def sample_plain(trial: Any, dims: Sequence[PlainDim]) -> dict[str, Any]:
 
 
 def decode_plain(spec: Any, params: Mapping[str, Any]) -> Any:
-    """The TrainConfig of plain-loop params: [fixed] ∪ params, threshold capped below the replay memory."""
+    """The TrainConfig of plain-loop params: [fixed] ∪ params, ``<setting>_fraction`` × train_iterations, the
+    threshold capped below the replay memory only (a user's loop knows nothing of the ladder's cap)."""
     from autotune import TrainConfig
 
     values = dict(spec.fixed_values)
+    fractions = {}
     for name, value in params.items():
         if name == "one_minus_gamma":
             values["gamma"] = float(f"{1.0 - value:.15g}")
+        elif name.endswith(FRACTION):
+            fractions[name.removesuffix(FRACTION)] = float(value)
         elif name != "n_layers" and not name.startswith(("neurons_", "activation_")):
             values[name] = value
+    length = values.get("train_iterations", TrainConfig().train_iterations)
+    for name, fraction in fractions.items():
+        values[name] = max(0, round(fraction * length))
     if "n_layers" in params:
         n = params["n_layers"]
         values["layers"] = "|".join(f"fc:{params[f'neurons_{i}']}:{params[f'activation_{i}']}" for i in range(n))
@@ -336,6 +351,7 @@ def train_job(job: Mapping[str, Any]) -> dict[str, Any]:
     """Train + score one config from one seed through the service's objective (``run_trial``)."""
     from autotune.search.objective import TrialTask, run_trial
 
+    rungs = tuple(int(b) for b in job.get("rungs", ()))
     task = TrialTask(
         number=int(job.get("number", 0)),
         config=dict(job["config"]),
@@ -344,58 +360,25 @@ def train_job(job: Mapping[str, Any]) -> dict[str, Any]:
         quick_runs=1,
         quick_frames=200,
         timeout_s=job.get("timeout_s"),
+        rungs=rungs,  # a ladder: every rung trained and scored, never pruned
     )
     out = run_trial(task, lambda k, frames, score: False)
-    return {"state": out.state, "value": out.value, "cause": out.cause, "seconds": out.wall_seconds}
-
-
-def _mapping(config: Any) -> dict[str, Any]:
-    return dict(config.to_mapping()) if hasattr(config, "to_mapping") else dict(config)
-
-
-def calibration_job(job: Mapping[str, Any], ladder: Any) -> dict[str, Any]:
-    """One configuration through the ladder's rungs, unpruned, while the estimated trial cost stays under the cap."""
-    from autotune import TrainConfig
-
-    config = TrainConfig.from_mapping(job["config"])
-    budgets = [int(b) for b in ladder.LADDER]
-    cap = float(job["cap_s"])
-    rungs: list[dict[str, Any]] = []
-    spent = 0.0
-    for i, budget in enumerate(budgets):
-        if i > 0:
-            estimate = rungs[-1]["seconds"] * budget / budgets[i - 1]
-            if spent + estimate > cap:
-                break
-        out = train_job(
-            {"config": _mapping(ladder.rung_config(config, budget)), "seed": job["seed"], "timeout_s": cap - spent}
-        )
-        spent += out["seconds"]
-        rungs.append(
-            {
-                "budget": budget,
-                "score": out["value"],
-                "seconds": out["seconds"],
-                "state": out["state"],
-                "cause": out["cause"],
-            }
-        )
-        if out["state"] != "complete" and i == 0:
-            return {"rungs": rungs, "refused": f"rung 0: {out['state']} ({out['cause']})"}
-    if len(rungs) < 2:
-        return {"rungs": rungs, "refused": f"only rung 0 fits the cap of {cap:g} s (it took {spent:.0f} s)"}
-    return {"rungs": rungs, "refused": None}
+    return {
+        "state": out.state,
+        "value": out.value,
+        "cause": out.cause,
+        "seconds": out.wall_seconds,
+        "rungs": out.attrs.get("rungs"),
+    }
 
 
 def run_job(job: Mapping[str, Any]) -> dict[str, Any]:
-    """A job in a worker process: 'loop', 'train', 'calibrate' or 'echo'."""
+    """A job in a worker process: 'loop', 'train' or 'echo'."""
     kind = job["kind"]
     if kind == "loop":
         return loop_job(job)
     if kind == "train":
         return train_job(job)
-    if kind == "calibrate":
-        return calibration_job(job, importlib.import_module("autotune.search.ladder"))
     if kind == "echo":  # the pool's own check: a round trip, optionally slow (sleep_s) to test the deadline
         time.sleep(float(job.get("sleep_s", 0.0)))
         return {"echo": job.get("payload"), "pid": os.getpid()}
@@ -973,64 +956,75 @@ def run_arm(arm: str, seed: int, args: argparse.Namespace, ctx: dict[str, Any]) 
     return run
 
 
-def run_calibration(n: int, args: argparse.Namespace, ctx: dict[str, Any]) -> dict[str, Any]:
-    """The calibration set (module doc); {"skipped": why} without the ladder module."""
+def calibration_draws(spec: Any, n: int, seed: int, cap_s: float) -> tuple[list[dict[str, Any]], list[str], int]:
+    """Up to ``n`` affordable draws of the service's space: (jobs with each draw's top config, planned rungs and
+    their prior-predicted seconds; the refusals' causes; draws made). No training: the prior prices them."""
     import optuna
 
+    from autotune.search import space
+    from autotune.search.cost import CostModel, plan
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
+    model = CostModel.prior()
+    jobs: list[dict[str, Any]] = []
+    refused: list[str] = []
+    drawn = 0
+    while len(jobs) < n and drawn < 100 * n:
+        params = space.sample(draws.ask(), spec)
+        drawn += 1
+        try:
+            configs = [space.to_config(spec, params, budget=b) for b in spec.ladder]
+        except Exception as exc:  # a combination deepqlearn rejects (the driver fails such a trial)
+            refused.append(f"invalid: {str(exc).splitlines()[0]}")
+            continue
+        p = plan(configs, model, cap_s)
+        if p is None or len(p.budgets) < 2:
+            first = model.predict(configs[0])
+            refused.append(f"{'rung 0' if p is None else 'rung 1'} over the cap (rung 0 predicted {first:,.0f} s)")
+            continue
+        top = configs[len(p.budgets) - 1]
+        jobs.append({"kind": "train", "config": top.to_mapping(), "seed": _seed(seed, drawn), "rungs": list(p.budgets),
+                     "predicted_s": list(p.costs), "timeout_s": float(spec.study.trial_timeout_s)})  # fmt: skip
+    return jobs, refused, drawn
+
+
+def run_calibration(n: int, args: argparse.Namespace, ctx: dict[str, Any]) -> dict[str, Any]:
+    """The calibration set (module doc); {"skipped": why} when there is nothing to calibrate."""
+    spec = ctx["spec"]
     if n <= 0:
         return {"skipped": "--calibration 0"}
-    if importlib.util.find_spec("autotune.search.ladder") is None:
-        return {"skipped": "autotune.search.ladder not found: the budget ladder (issue 14) is not in this checkout"}
-    ladder = importlib.import_module("autotune.search.ladder")
-    missing = [name for name in ("LADDER", "rung_config") if not hasattr(ladder, name)]
-    if missing:
-        return {"skipped": f"autotune.search.ladder has no {', '.join(missing)}"}
-    spec = ctx["spec"]
-    cap = args.calibration_cap or float(ctx["data"].get("study", {}).get("max_trial_cost_s") or 0.0)
-    cap = cap or float(spec.study.trial_timeout_s)
-    dims, _ = plain_space(spec)
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=args.calibration_seed))
-    accepted: list[dict[str, Any]] = []
-    refused: list[str] = []
+    if not tuple(getattr(spec, "ladder", ()) or ()):
+        return {"skipped": f"{ctx['space']} has no [ladder]: no rungs to calibrate"}
+    cap = args.calibration_cap or float(spec.study.cost_cap_s)
     t0 = time.time()
-    drawn = 0
-    with Pool(args.workers) as pool:
-        while len(accepted) < n and drawn < 10 * n:
-            batch: list[dict[str, Any]] = []
-            while len(batch) < n - len(accepted) and drawn < 10 * n:
-                trial = draws.ask()
-                drawn += 1
-                try:
-                    config = decode_plain(spec, sample_plain(trial, dims))
-                except Exception as exc:
-                    refused.append(f"invalid draw: {exc}")
-                    continue
-                batch.append(
-                    {
-                        "kind": "calibrate",
-                        "config": config.to_mapping(),
-                        "cap_s": cap,
-                        "seed": _seed(args.calibration_seed, drawn),
-                    }
-                )
-            for job, res in zip(batch, pool.run(batch), strict=True):
-                if "error" in res:
-                    refused.append(f"error: {res['error']}")
-                elif res["refused"]:
-                    refused.append(res["refused"])
-                else:
-                    accepted.append({"config": job["config"], "seed": job["seed"], "rungs": res["rungs"]})
+    jobs, refused, drawn = calibration_draws(spec, n, args.calibration_seed, cap)
+    with Pool(min(args.workers, max(1, len(jobs)))) as pool:
+        results = pool.run(jobs)
+    sets, unfinished, errors = [], [], []
+    for job, res in zip(jobs, results, strict=True):
+        rungs = res.get("rungs") or []
+        for rung, predicted in zip(rungs, job["predicted_s"], strict=False):
+            if rung.get("seconds"):
+                errors.append(abs(rung["seconds"] - predicted) / rung["seconds"])
+        entry = {"config": job["config"], "seed": job["seed"], "rungs": rungs, "predicted_s": job["predicted_s"]}
+        if res.get("state") == "complete":
+            sets.append(entry)
+        else:
+            unfinished.append({**entry, "cause": res.get("cause") or res.get("error")})
     return {
-        "ladder": [int(b) for b in ladder.LADDER],
+        "ladder": list(spec.ladder),
         "cap_s": cap,
-        "configs": len(accepted),
+        "configs": len(sets),
+        "unfinished": unfinished,
         "draws": drawn,
         "refused": len(refused),
         "refused_causes": refused[:20],
+        "prior_cost_median_error": median(errors),
+        "prior_cost_rungs": len(errors),
         "seconds": time.time() - t0,
-        "correlations": rung_correlations([c["rungs"] for c in accepted]),
-        "sets": accepted,
+        "correlations": rung_correlations([c["rungs"] for c in sets]),
+        "sets": sets,
     }
 
 
@@ -1071,7 +1065,7 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
                 f"{arm:<7} {cp['runs']:>4} {cp['minutes']:>5g} {_f(cp['best_median']):>7} "
                 f"{_f(cp['reseed_mean_median']):>12} {_f(cp['best_not_enqueued_median']):>13}  {per_run}"
             )
-    lines.append("")
+    lines += ["", *result.get("notes", [])]
     for arm, body in result["arms"].items():
         for run in body.get("runs", []):
             st = run["states"]
@@ -1094,8 +1088,9 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
     elif cal:
         rhos = ", ".join(f"{c['budget']:,}: ρ={_f(c['spearman'])} (n={c['n']})" for c in cal["correlations"])
         lines.append(
-            f"calibration: {cal['configs']} configs ({cal['refused']} refused of {cal['draws']} draws, "
-            f"cap {cal['cap_s']:g} s, {cal['seconds']:.0f} s); rung vs top: {rhos}"
+            f"calibration: {cal['configs']} configs + {len(cal['unfinished'])} unfinished ({cal['refused']} of "
+            f"{cal['draws']} draws refused, cap {cal['cap_s']:g} s, {cal['seconds']:.0f} s); prior cost model error "
+            f"{_pct(cal['prior_cost_median_error'])} over {cal['prior_cost_rungs']} rungs; rung vs top: {rhos}"
         )
     return lines
 
@@ -1136,7 +1131,11 @@ def _floats(text: str, what: str) -> list[float]:
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--space", default="paper", help="study spec: a study_configs name (paper, smoke) or a TOML path")
-    p.add_argument("--arms", default=",".join(ARMS), help=f"arms to run, in order (default {','.join(ARMS)})")
+    p.add_argument(
+        "--arms",
+        default=",".join(ARMS),
+        help=f"arms to run, in order (default {','.join(ARMS)}; none: calibration only)",
+    )
     p.add_argument("--minutes", default="10,30,60", help="checkpoints [min]; the longest is each arm's budget")
     p.add_argument("--study-seeds", default="0", help="study seeds of the plain and cold arms (e.g. 0,1,2)")
     p.add_argument("--workers", type=int, default=2, help="processes per arm, one core each (default 2)")
@@ -1156,10 +1155,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--out", default=str(ROOT / "runs" / "search_quality"), help="output folder")
     args = p.parse_args(argv)
-    args.arm_list = [a.strip() for a in args.arms.split(",") if a.strip()]
+    args.arm_list = [] if args.arms == "none" else [a.strip() for a in args.arms.split(",") if a.strip()]
     bad = [a for a in args.arm_list if a not in ARMS]
-    if bad or not args.arm_list:
-        raise BenchError(f"--arms {args.arms}: unknown arm {bad[0] if bad else '(none)'}; use {', '.join(ARMS)}")
+    if bad or (not args.arm_list and args.arms != "none"):
+        raise BenchError(
+            f"--arms {args.arms}: unknown arm {bad[0] if bad else '(none)'}; use {', '.join(ARMS)} or none"
+        )
     args.minute_list = sorted(set(_floats(args.minutes, "--minutes")))
     try:
         args.seed_list = [int(x) for x in args.study_seeds.split(",") if x.strip()]

@@ -3,7 +3,6 @@ the plain loop's space, one plain-loop worker and a calibration set on tiny trai
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.util
 import math
 import sys
@@ -30,6 +29,11 @@ _SPEC.loader.exec_module(sq)
 
 PAPER = ROOT / "study_configs" / "paper.toml"
 SMOKE = ROOT / "study_configs" / "smoke.toml"
+TINY = {  # a net that trains in a second
+    "ruleset": "v2", "patches_ahead": 2, "other_agents": 1, "temporal_window": 0, "experience_size": 200,
+    "start_learn_threshold": 50, "learning_steps_total": 300, "learning_steps_burnin": 50, "batch_size": 8,
+    "layers": "fc:4:relu",
+}  # fmt: skip
 
 
 def row(number: int, value: float | None, end_s: float | None, **attrs: Any) -> Any:
@@ -64,8 +68,10 @@ def test_toml_values() -> None:
 def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
     spec = load_spec(PAPER)
     dims, notes = sq.plain_space(spec)
-    assert notes == ()
-    assert {d.name for d in dims} == {d.name for d in spec.space}
+    assert {d.name for d in dims} == {d.name for d in spec.space} | {"train_iterations"}
+    (length,) = [d for d in dims if d.name == "train_iterations"]
+    assert (length.low, length.high, length.log) == (spec.ladder[0], spec.ladder[-1], True)
+    assert len(notes) == 1 and "ladder" in notes[0]
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
     layer_counts = set()
     for _ in range(40):
@@ -76,20 +82,23 @@ def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
             f"{p}_{i}" for p in ("neurons", "activation") for i in range(n)
         }
         config = sq.decode_plain(spec, params)
-        assert len(config.layers) == n
+        assert len(config.layers) == n and config.method == params["method"]
         assert config.start_learn_threshold < config.experience_size
         assert config.gamma == pytest.approx(1 - params["one_minus_gamma"])
+        fraction = params["learning_steps_burnin_fraction"]
+        assert config.learning_steps_burnin == round(fraction * params["train_iterations"])
     assert len(layer_counts) > 3
 
 
 def test_plain_space_leaves_out_service_only_names_and_keeps_a_train_length() -> None:
     spec = load_spec(SMOKE)
-    extra = types.SimpleNamespace(name="burnin_fraction", kind="float", low=0.0, high=1.0, log=False, step=None)
-    ladder_like = types.SimpleNamespace(space=(*spec.space, extra), fixed_values={}, ruleset="v2")
-    dims, notes = sq.plain_space(ladder_like)
+    extra = types.SimpleNamespace(name="budget_rung", kind="int", low=0, high=3, log=False, step=None, choices=())
+    unknown = types.SimpleNamespace(space=(*spec.space, extra), fixed_values={}, ruleset="v2")
+    dims, notes = sq.plain_space(unknown)
     names = [d.name for d in dims]
-    assert "burnin_fraction" not in names and names[-1] == "train_iterations"
-    assert any("burnin_fraction" in n for n in notes) and any("train_iterations" in n for n in notes)
+    assert "budget_rung" not in names and names[0] == "train_iterations"
+    assert dims[0].low == sq.FALLBACK_ITERATIONS["low"] and dims[0].high == sq.FALLBACK_ITERATIONS["high"]
+    assert any("budget_rung" in n for n in notes) and any("train_iterations" in n for n in notes)
 
 
 # -- trial records → figures ------------------------------------------------------------------------
@@ -230,10 +239,10 @@ def test_pool_round_trip_and_deadline() -> None:
         assert "killed" in out[0]["error"] and time.time() - t < 20
 
 
-def _smoke_copy(tmp_path: Path, **study: Any) -> Path:
+def _smoke_copy(tmp_path: Path, trial_timeout_s: float) -> Path:
     data = sq.study_copy(tomllib.loads(SMOKE.read_text()), "smoke-copy", 0, 60.0)
-    data["study"].update(study)
-    path = tmp_path / "smoke.toml"
+    data["study"]["trial_timeout_s"] = trial_timeout_s
+    path = tmp_path / f"smoke-{trial_timeout_s:g}.toml"
     path.write_text(sq.toml_dumps(data))
     return path
 
@@ -244,9 +253,10 @@ def test_plain_loop_worker_records_the_contract_and_stops_at_the_trial_limit(tmp
         optuna.create_study(study_name=name, storage=storage, direction="maximize")
     job = {"kind": "loop", "storage": str(tmp_path / "j.log"), "study_seed": 0, "worker": 0, "prune": True}
     t0 = time.time()
-    out = sq.loop_job({**job, "space": str(SMOKE), "study": "ok", "deadline": t0 + 120, "n_trials": 2})
+    roomy = _smoke_copy(tmp_path, trial_timeout_s=600)  # a cold numba cache compiles for a minute or more
+    out = sq.loop_job({**job, "space": str(roomy), "study": "ok", "deadline": t0 + 900, "n_trials": 2})
     assert out["trials"] == 2
-    tiny = _smoke_copy(tmp_path, trial_timeout_s=0.001)
+    tiny = _smoke_copy(tmp_path, trial_timeout_s=0.001)  # stopped at its first progress call
     sq.loop_job({**job, "space": str(tiny), "study": "limit", "deadline": time.time() + 120, "n_trials": 1})
     rows = sq.read_rows(tmp_path / "j.log", "ok", t0)
     assert [r.state for r in rows] == ["COMPLETE", "COMPLETE"]
@@ -259,21 +269,34 @@ def test_plain_loop_worker_records_the_contract_and_stops_at_the_trial_limit(tmp
     assert sq.limit_share([limited], 1.0) > 0
 
 
-def test_calibration_job_trains_every_rung_that_fits(tmp_path: Path) -> None:
-    spec = load_spec(SMOKE)
-    config = sq.decode_plain(spec, {"lanes_side": 1, "patches_ahead": 4, "patches_behind": 0, "learning_rate": 1e-3,
-                                    "one_minus_gamma": 0.1, "n_layers": 0})  # fmt: skip
+def test_calibration_draws_are_priced_by_the_prior_and_reproducible() -> None:
+    from autotune.search.cost import CostModel
 
-    def ladder(*budgets: int) -> Any:
-        rung = lambda c, b: dataclasses.replace(c, train_iterations=b)  # noqa: E731
-        return types.SimpleNamespace(LADDER=budgets, rung_config=rung)
+    spec = load_spec(PAPER)
+    jobs, refused, drawn = sq.calibration_draws(spec, 4, 14, 300.0)
+    assert len(jobs) == 4 and drawn == 4 + len(refused)
+    for job in jobs:
+        assert len(job["rungs"]) >= 2 and job["rungs"] == list(spec.ladder[: len(job["rungs"])])
+        assert sum(job["predicted_s"]) <= 300.0
+        top = TrainConfig.from_mapping(job["config"])
+        assert top.train_iterations == job["rungs"][-1]
+        assert CostModel.prior().predict(top) == pytest.approx(job["predicted_s"][-1])
+    assert len({job["seed"] for job in jobs}) == 4
+    again, _, _ = sq.calibration_draws(spec, 4, 14, 300.0)
+    assert again == jobs
+    none, refused, drawn = sq.calibration_draws(spec, 2, 14, 0.5)  # no rung 0 costs under half a second
+    assert none == [] and drawn == 200 and len(refused) == 200 and "rung 0 over the cap" in refused[0]
 
-    job = {"config": config.to_mapping(), "seed": 7, "cap_s": 1e6}
-    out = sq.calibration_job(job, ladder(400, 800))
-    assert out["refused"] is None and [r["budget"] for r in out["rungs"]] == [400, 800]
-    assert all(r["state"] == "complete" and r["score"] > 0 and r["seconds"] > 0 for r in out["rungs"])
-    out = sq.calibration_job(job, ladder(400, 10**12))  # the top rung would take years: refused after rung 0
-    assert len(out["rungs"]) == 1 and "only rung 0 fits" in out["refused"]
+
+def test_train_job_climbs_every_rung_unpruned() -> None:
+    config = TrainConfig.from_mapping({**TINY, "train_iterations": 800})
+    out = sq.train_job({"config": config.to_mapping(), "seed": 7, "rungs": [400, 800]})
+    assert out["state"] == "complete" and [r["budget"] for r in out["rungs"]] == [400, 800]
+    assert all(r["score"] > 0 and r["seconds"] > 0 for r in out["rungs"])
+    assert out["value"] == out["rungs"][-1]["score"]
+    args = types.SimpleNamespace(calibration_cap=None, calibration_seed=0, workers=1)
+    skipped = sq.run_calibration(3, args, {"spec": load_spec(SMOKE), "space": SMOKE})
+    assert "no [ladder]" in skipped["skipped"]
 
 
 def test_reference_and_bad_options(capsys: pytest.CaptureFixture[str]) -> None:

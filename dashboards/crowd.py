@@ -23,11 +23,16 @@ from optuna.distributions import BaseDistribution, CategoricalDistribution, Floa
 from autotune.convnet import spec
 from autotune.learner.config import TrainConfig
 from dashboards import crowd_data as cd
+from dashboards import provenance as pv
 from sim.protocols import OFFICIAL
 
 __all__ = [
     "CROWD_STUDY",
     "REPLAY_STUDY",
+    "CROWD_METRIC",
+    "REPLAY_METRIC",
+    "set_metric_name",
+    "own_net_attrs",
     "ACTIVATION_CHOICES",
     "ImportResult",
     "encode_params",
@@ -41,6 +46,14 @@ __all__ = [
 CROWD_STUDY = "crowd"
 REPLAY_STUDY = "crowd-replay"
 OWN_NET_SCORES = "own_net_scores"  # study user attr: {crowd id: {score, protocol, mean, std, runs}}
+CROWD_METRIC = (
+    "self-reported score [mph]: claimed by the author, not measured (engine: engine_version; kind: score_kind; "
+    "measured own-weight score, where there is one: own_net_score)"
+)
+REPLAY_METRIC = (
+    "replayed score [mph], measured: the crowd setting retrained by our learner in its own engine, site median of "
+    "that engine's official protocol"
+)
 ACTIVATION_CHOICES = ("relu", "tanh", "sigmoid", "maxout", "linear", "svm")
 
 # name -> (kind, low, high, log): bounds wide enough for every valid TrainConfig; log only when all values > 0.
@@ -141,6 +154,9 @@ def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | N
         "version_date": sub.version_date.isoformat() if sub.version_date else None,
         "score_kind": sub.score_kind,
         "score_confidence": sub.score_confidence,
+        "value_is": f"{pv.KIND_LABEL[str(sub.score_kind)]}: self-reported by the author, not measured "
+        f"({pv.ENGINE_LABEL[sub.engine_version]}, {pv.agents_label(sub.engine_version, sub.other_agents)})",
+        "config_hash": sub.config_hash,
         "score_source": sub.score_source,
         "engine_version": sub.engine_version,
         "trainer_method": sub.trainer_method,
@@ -210,9 +226,14 @@ def import_crowd(
 ) -> tuple[optuna.Study, ImportResult]:
     """Write the crowd into ``study_name`` (created if absent, direction maximize); adds only missing submissions.
 
-    ``own_net_scores`` ({id: {score, protocol, …}}) are merged into the study's ``own_net_scores``
-    user attribute and set on the trials created now.
+    ``own_net_scores`` ({id: {score, protocol, …}}; default: the shipped ``measured.load_own_nets()``)
+    are merged into the study's ``own_net_scores`` user attribute and set on the trials created now.
+    The study's metric name says that its values are claims.
     """
+    if own_net_scores is None:
+        from dashboards import measured
+
+        own_net_scores = own_net_attrs(measured.load_own_nets())
     study = optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
     if study.direction != optuna.study.StudyDirection.MAXIMIZE:
         raise ValueError(f"study {study_name!r} exists and minimizes; the crowd's scores are maximized")
@@ -221,11 +242,32 @@ def import_crowd(
     new = [t for t in trials if t.user_attrs["crowd_id"] not in present]
     study.add_trials(new)
     study.set_user_attr("source", "crowd")
+    set_metric_name(study, CROWD_METRIC)
     study.set_user_attr("skipped", skipped)
     if own_net_scores:
         merged = {**study.user_attrs.get(OWN_NET_SCORES, {}), **own_net_scores}
         study.set_user_attr(OWN_NET_SCORES, merged)
     return study, ImportResult(study_name, len(new), len(trials) - len(new), skipped)
+
+
+def set_metric_name(study: optuna.Study, name: str) -> None:
+    """Say what the study's value is (optuna-dashboard shows it); Optuna calls the API experimental."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        study.set_metric_names([name])
+
+
+def own_net_attrs(scores: Iterable[Any]) -> dict[str, dict[str, Any]]:
+    """``measured.OwnNetScore``s as the study attribute ``own_net_scores`` holds them ({id: {score, …}})."""
+    return {
+        s.crowd_id: {
+            "score": s.score, "protocol": s.protocol, "mean": s.mean, "std": s.std, "runs": s.runs,
+            "other_agents": s.other_agents, "seed": s.seed,
+        }
+        for s in scores
+    }  # fmt: skip
 
 
 def crowd_study(storage: str | optuna.storages.BaseStorage | None = None) -> optuna.Study:

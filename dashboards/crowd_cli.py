@@ -18,9 +18,10 @@ protocol of the submission's engine, no pruning. Then it prints self-reported ag
 trials. ``--filter`` is a small expression over the CSV columns, e.g.
 ``engine_version == 'v2' and reported_score_mph > 70`` (parsed with ``ast``, never ``eval``).
 ``compare`` writes the self-contained HTML report and attaches its figures to the study in
-optuna-dashboard; its evaluation-spread panel scores three crowd nets ``--spread-runs`` times with
-the exact evaluator (``dashboards.spread.crowd_spread``), cached in ``runs/.spread-cache/`` by
-(nets, runs) so a second compare does not score them again. Bad input: one line on stderr, exit status 2.
+optuna-dashboard; its measured-crowd panels read the package data (``dashboards.measured``,
+``dashboards.spread``: own-weight scores, the replay table, the site's number under 50 protocol
+seeds, up to ``--spread-runs`` runs per evaluation), so it scores nothing itself. Bad input: one
+line on stderr, exit status 2.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FilterError", "compile_filter", "add_parser", "run", "score_own_nets", "enqueue_replay", "replay_seed",
-    "replay_spec", "replay_table", "cached_crowd_spread", "SPREAD_CACHE",
+    "replay_spec", "replay_table",
 ]  # fmt: skip
 
 REPLAY_TRIAL_TIMEOUT_S = 24 * 3600.0  # a crowd setting trains as long as it says (up to 1,000,000 iterations)
@@ -168,27 +169,13 @@ def _row_namespace(sub: Any) -> dict[str, Any]:
 
 def score_own_nets(progress: Callable[[str], None] | None = None) -> dict[str, dict[str, Any]]:
     """The 25 human nets scored with their own weights, engine and official protocol (exact evaluator)."""
-    from autotune.learner.brain_policy import evaluate_net
-    from autotune.learner.official import OFFICIAL_PROTOCOL
-    from dashboards import crowd_data
+    from dashboards import crowd, measured
 
-    out: dict[str, dict[str, Any]] = {}
-    for nid in crowd_data.net_ids():
-        net, settings = crowd_data.load_net(nid)
-        protocol = OFFICIAL_PROTOCOL[settings.engine]
-        result = evaluate_net(net, settings, protocol)
-        out[nid] = {
-            "score": result.median_site,
-            "protocol": protocol,
-            "mean": result.mean,
-            "std": result.std,
-            "runs": result.runs,
-            "other_agents": result.other_agents,
-            "seed": result.seed,
-        }
+    def show(s: measured.OwnNetScore) -> None:
         if progress is not None:
-            progress(f"{nid}: {result.median_site:.2f} mph ({protocol}, {result.wall_seconds:.1f} s)")
-    return out
+            progress(f"{s.crowd_id}: {s.score:.2f} mph ({s.protocol}, {s.seconds:.1f} s)")
+
+    return crowd.own_net_attrs(measured.score_own_nets(progress=show))
 
 
 def replay_seed(crowd_id: str, seed_index: int) -> int:
@@ -389,9 +376,9 @@ def add_parser(subparsers: Any) -> None:
     cmp.add_argument("--no-dashboard", action="store_true", help="do not attach the figures to the study")
     cmp.add_argument(
         "--spread-runs", type=int, default=500, metavar="N",
-        help="evaluation runs per net of the spread panel (default 500, the site's; cached under runs/)",
+        help="spread panel: runs per evaluation shown up to N (default 500, the site's; shipped data)",
     )  # fmt: skip
-    cmp.add_argument("--no-spread", action="store_true", help="skip the evaluation-spread panel (no net is scored)")
+    cmp.add_argument("--no-spread", action="store_true", help="leave out the evaluation-spread panel")
     cmp.set_defaults(func=run, command_name="compare")
 
 
@@ -436,6 +423,7 @@ def _replay(args: argparse.Namespace) -> int:
         study_name=args.study, storage=storages.storage, direction="maximize", load_if_exists=True
     )
     study.set_user_attr("source", "crowd-replay")
+    crowd.set_metric_name(study, crowd.REPLAY_METRIC)
     added, existing, skipped = enqueue_replay(study, subs, args.seeds)
     print(
         f"{storages.url}: study '{args.study}': {len(subs)} crowd setting(s) selected; {added} trial(s) enqueued, "
@@ -522,6 +510,7 @@ def _compare(args: argparse.Namespace) -> int:
 
     if not args.no_spread and args.spread_runs < 2:
         raise ConfigError(f"--spread-runs: need at least 2 runs, got {args.spread_runs}")
+    from dashboards.spread import load_spread_runs
 
     storages = open_storage(args.storage, args.study, heartbeat=False, create=False)
     automated = load_study(storages, args.study)
@@ -536,7 +525,7 @@ def _compare(args: argparse.Namespace) -> int:
         replay = load_study(open_storage(args.storage, args.replay, heartbeat=False, create=False), args.replay)
     else:
         replay = _stored_study(args.storage, crowd.REPLAY_STUDY)
-    spread = Empty("not computed (--no-spread)") if args.no_spread else cached_crowd_spread(args.spread_runs)
+    spread = Empty("not drawn (--no-spread)") if args.no_spread else load_spread_runs(args.spread_runs)
     built = report.build_report(automated, crowd_study, replay=replay, spread=spread, seed=args.seed)
     path = report.write_html(built, args.out)
     shown = sum(1 for s in built.sections if not isinstance(s.figure, report.Empty))
@@ -548,41 +537,6 @@ def _compare(args: argparse.Namespace) -> int:
         ids = report.attach_to_dashboard(automated, built)
         print(f"attached {len(ids)} figure(s) and a note to study '{args.study}' for optuna-dashboard")
     return 0
-
-
-SPREAD_CACHE = Path("runs") / ".spread-cache"
-"""Where ``compare`` keeps computed spread data, one JSON file per (nets, runs, scoring settings)."""
-
-
-def cached_crowd_spread(runs: int, cache_dir: Path = SPREAD_CACHE) -> SpreadData:
-    """``spread.crowd_spread(runs=runs)`` for the default nets, read from / written to ``cache_dir``."""
-    import hashlib
-    import json
-
-    from dashboards import spread
-
-    key = {"nets": list(spread.DEFAULT_NETS), "runs": runs, "format": 1}
-    path = cache_dir / f"spread-{hashlib.sha1(json.dumps(key).encode()).hexdigest()[:12]}.json"
-    try:
-        stored = json.loads(path.read_text())
-        nets = tuple(spread.NetSpread(**n) for n in stored.pop("nets"))
-        data = spread.SpreadData(**stored, nets=nets)
-        if [n.name for n in data.nets] == key["nets"] and data.runs == runs:
-            print(f"evaluation spread: {len(nets)} nets × {runs} runs from {path}")
-            return data
-    except (OSError, ValueError, TypeError, KeyError):
-        pass  # missing or unreadable: compute it again
-    t0 = time.perf_counter()
-    data = spread.crowd_spread(runs=runs)
-    print(f"evaluation spread: {len(data.nets)} nets × {runs} runs scored in {time.perf_counter() - t0:.1f} s")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(dataclasses.asdict(data)))
-        tmp.replace(path)
-    except OSError as exc:  # a read-only tree: the report still gets the data
-        print(f"  (not cached: {exc})", file=sys.stderr)
-    return data
 
 
 def run(args: argparse.Namespace) -> int:

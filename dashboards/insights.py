@@ -1,29 +1,71 @@
-"""The paper's four insights, each tested by a Spearman rank correlation against the score.
+"""The paper's four insights, tested so that the engine and the other agents cannot fake them.
 
 * size matters — parameter count vs score, expected positive;
 * live in the moment — temporal window vs score, expected negative (a short memory is better);
 * look far forward — patches ahead vs score, expected positive;
 * plan for the future — γ vs score, expected positive.
 
-An insight *holds* in a study when the correlation has the expected sign and p < ``ALPHA``;
-it is undecided (``holds=None``) when fewer than ``MIN_POINTS`` trials record it or it never varies.
-Spearman, not Pearson: settings span orders of magnitude and scores are bounded, so ranks are the
-robust choice.
+The engine is the strongest covariate of a crowd score (v1 claims run higher than v2 ones), so a
+pooled correlation partly measures the engine. Each insight is therefore tested
+
+* per engine: Spearman ρ over that engine's configurations;
+* pooled: partial Spearman ρ controlling for the engine and the other agents — the Pearson
+  correlation of the ranks of the setting and of the score after each is residualised (least
+  squares) on an intercept, the engine (v2 = 1) and the rank of the other agents (v1 has none: 0);
+  covariates that do not vary are left out; p from Student's t with n − 2 − k degrees of freedom
+  (k covariates);
+* and, for the crowd, a sensitivity row: the pooled test on one configuration per repository (its
+  latest), since two repositories hold half the rows.
+
+The unit is the configuration: identical settings count once (``extract.configurations``, score =
+mean of its rows). The p-values of every test in the table are Holm-adjusted together; an insight
+*holds* in a row when the correlation has the expected sign and the adjusted p < ``ALPHA``. A row
+with fewer than ``MIN_POINTS`` configurations, or a constant setting or score, is undecided and
+takes no part in the correction. Spearman, not Pearson: settings span orders of magnitude and
+scores are bounded, so ranks are the robust choice.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
+import numpy as np
 from scipy import stats
 
-from dashboards.extract import StudyData, TrialPoint
+from dashboards import provenance as pv
+from dashboards.extract import StudyData, TrialPoint, configurations
 
-__all__ = ["ALPHA", "MIN_POINTS", "INSIGHTS", "Insight", "InsightResult", "evaluate", "evaluate_all"]
+__all__ = [
+    "ALPHA",
+    "MIN_POINTS",
+    "INSIGHTS",
+    "GROUPS",
+    "METHOD",
+    "Insight",
+    "InsightResult",
+    "partial_spearman",
+    "holm",
+    "evaluate",
+    "evaluate_study",
+    "evaluate_all",
+    "one_per_repository",
+]
 
 ALPHA = 0.05
 MIN_POINTS = 5
+GROUPS = ("v1 engine", "v2 engine", "pooled", "pooled, one configuration per repository")
+METHOD = (
+    "Unit: the configuration (identical settings once; a repeated setting scores the mean of its rows). "
+    "Per engine: Spearman ρ of the setting against the score. Pooled: partial Spearman ρ controlling for the engine "
+    "(v2 = 1) and the other agents (ranked; v1 has none: 0) — the Pearson correlation of the ranks of setting and "
+    "score after least-squares residualisation on those covariates (those that vary), p from Student's t with "
+    "n − 2 − k degrees of freedom. Crowd sensitivity: the pooled test on each repository's latest configuration. "
+    "All p-values in the table are Holm-adjusted together; an insight holds in a row when ρ has the claimed sign and "
+    f"the adjusted p < {ALPHA}. Rows with fewer than {MIN_POINTS} configurations, or a constant setting, are undecided "
+    "and not counted in the correction."
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,16 +88,33 @@ INSIGHTS = (
 
 @dataclasses.dataclass(frozen=True)
 class InsightResult:
-    """An insight tested in one study."""
+    """An insight tested on one group of one study's configurations."""
 
     insight: Insight
     study: str
+    side: str
+    """'crowd' or 'autotune' (the report's sides)."""
+    group: str
+    """One of ``GROUPS``."""
+    engines: list[str]
+    """Engines of the configurations tested."""
+    kinds: list[str]
+    """Score kinds of the scores tested."""
     statistic: str
+    covariates: list[str]
+    """Covariates partialled out (empty: plain Spearman)."""
     n: int
     value: float | None
     p_value: float | None
+    p_holm: float | None
+    """Holm-adjusted p over every test of the table (``evaluate_all``)."""
     holds: bool | None
     note: str
+
+    @property
+    def name(self) -> str:
+        """The row's name: study, engines and score kinds."""
+        return pv.series_name(self.study, self.engines or ["v2"], self.kinds) if self.engines else self.study
 
 
 def _value(t: TrialPoint, variable: str) -> float | None:
@@ -64,36 +123,139 @@ def _value(t: TrialPoint, variable: str) -> float | None:
     return t.settings.get(variable)
 
 
-def evaluate(insight: Insight, data: StudyData) -> InsightResult:
-    """Spearman ρ of ``insight.variable`` against the score over ``data``'s scored trials."""
-    pairs = [(v, float(t.value)) for t in data.scored if (v := _value(t, insight.variable)) is not None]  # type: ignore[arg-type]
-    n = len(pairs)
-    stat = f"Spearman ρ({insight.variable}, score)"
+def partial_spearman(x: Sequence[float], y: Sequence[float], covariates: np.ndarray) -> tuple[float, float, int]:
+    """(ρ, two-sided p, degrees of freedom) of x and y given the covariate columns (n × k, any k ≥ 0), on ranks."""
+    rx, ry = stats.rankdata(x), stats.rankdata(y)
+    n = len(rx)
+    z = np.ones((n, 1))
+    if covariates.size:
+        z = np.column_stack([z, np.apply_along_axis(stats.rankdata, 0, covariates)])
+    ex = rx - z @ np.linalg.lstsq(z, rx, rcond=None)[0]
+    ey = ry - z @ np.linalg.lstsq(z, ry, rcond=None)[0]
+    denom = math.sqrt(float(ex @ ex) * float(ey @ ey))
+    if denom == 0:
+        return math.nan, math.nan, 0
+    r = float(ex @ ey) / denom
+    r = max(-1.0, min(1.0, r))
+    df = n - 2 - (z.shape[1] - 1)
+    if df < 1:
+        return r, math.nan, df
+    if abs(r) == 1.0:
+        return r, 0.0, df
+    t = r * math.sqrt(df / (1.0 - r * r))
+    return r, float(2.0 * stats.t.sf(abs(t), df)), df
 
-    def undecided(note: str) -> InsightResult:
-        return InsightResult(insight, data.name, stat, n, None, None, None, note)
+
+def holm(p_values: Sequence[float | None]) -> list[float | None]:
+    """Holm's step-down adjustment of the p-values given (None stays None and does not count)."""
+    present = sorted((p, i) for i, p in enumerate(p_values) if p is not None)
+    m = len(present)
+    out: list[float | None] = [None] * len(p_values)
+    running = 0.0
+    for rank, (p, i) in enumerate(present):
+        running = max(running, min(1.0, (m - rank) * p))
+        out[i] = running
+    return out
+
+
+def one_per_repository(units: Sequence[TrialPoint]) -> list[TrialPoint]:
+    """Each repository's latest configuration (highest trial number = latest submission); units without a
+    repository are kept."""
+    latest: dict[str, TrialPoint] = {}
+    out = []
+    for t in units:
+        if t.repo is None:
+            out.append(t)
+        elif t.repo not in latest or t.number > latest[t.repo].number:
+            latest[t.repo] = t
+    return sorted([*out, *latest.values()], key=lambda t: t.number)
+
+
+def evaluate(
+    insight: Insight, units: Sequence[TrialPoint], *, study: str, side: str, group: str, kinds: Sequence[str]
+) -> InsightResult:
+    """One test of ``insight`` on ``units`` (configurations): Spearman within one engine, else partial Spearman."""
+    pairs = [(t, v) for t in units if (v := _value(t, insight.variable)) is not None]
+    n = len(pairs)
+    engines = [e for e in pv.ENGINES if any(t.engine == e for t, _v in pairs)]
+    pooled = group.startswith("pooled")
+    covariates: list[str] = []
+    columns = []
+    if pooled:
+        for name, column in (
+            ("engine", [1.0 if t.engine == "v2" else 0.0 for t, _v in pairs]),
+            ("other agents", [float(t.other_agents or 0) for t, _v in pairs]),
+        ):
+            if len(set(column)) > 1:
+                covariates.append(name)
+                columns.append(column)
+    stat = f"Spearman ρ({insight.variable}, score)"
+    if covariates:
+        stat = f"partial Spearman ρ({insight.variable}, score | {', '.join(covariates)})"
+
+    def result(value: float | None, p: float | None, holds: bool | None, note: str) -> InsightResult:
+        return InsightResult(
+            insight, study, side, group, engines, list(kinds), stat, covariates, n, value, p, None, holds, note
+        )
 
     if n < MIN_POINTS:
-        return undecided(f"only {n} scored trial(s) record {insight.variable} (need {MIN_POINTS})")
-    xs, ys = [p[0] for p in pairs], [p[1] for p in pairs]
+        return result(None, None, None, f"only {n} configuration(s) record {insight.variable} (need {MIN_POINTS})")
+    xs, ys = [v for _t, v in pairs], [float(t.value) for t, _v in pairs]  # type: ignore[arg-type]
     if len(set(xs)) < 2:
-        return undecided(f"{insight.variable} is the same in every trial ({xs[0]:g})")
+        return result(None, None, None, f"{insight.variable} is the same in every configuration ({xs[0]:g})")
     if len(set(ys)) < 2:
-        return undecided("every trial has the same score")
-    result = stats.spearmanr(xs, ys)
-    rho, p = float(result.statistic), float(result.pvalue)
-    if math.isnan(rho):
-        return undecided("correlation undefined")
-    holds = rho * insight.sign > 0 and p < ALPHA
+        return result(None, None, None, "every configuration has the same score")
+    z = np.array(columns, dtype=float).T if columns else np.empty((n, 0))
+    rho, p, _df = partial_spearman(xs, ys, z)
+    if math.isnan(rho) or math.isnan(p):
+        return result(None, None, None, "correlation undefined (no variation left after the covariates)")
+    return result(rho, p, None, "")
+
+
+def _decide(r: InsightResult, p_holm: float | None) -> InsightResult:
+    if r.value is None or p_holm is None:
+        return r
+    holds = r.value * r.insight.sign > 0 and p_holm < ALPHA
     if holds:
-        note = f"{insight.claim} (ρ {rho:+.2f}, p {p:.2g})"
-    elif p >= ALPHA:
-        note = f"no significant rank correlation at α = {ALPHA}"
+        note = f"{r.insight.claim} (ρ {r.value:+.2f}, Holm p {p_holm:.2g})"
+    elif p_holm >= ALPHA:
+        note = f"no significant rank correlation after Holm at α = {ALPHA}"
     else:
         note = "significant, but the opposite direction"
-    return InsightResult(insight, data.name, stat, n, rho, p, holds, note)
+    return dataclasses.replace(r, p_holm=p_holm, holds=holds, note=note)
 
 
-def evaluate_all(data: StudyData) -> list[InsightResult]:
-    """The four insights in ``data``."""
-    return [evaluate(i, data) for i in INSIGHTS]
+def evaluate_study(data: StudyData, side: str, *, by_repository: bool | None = None) -> list[InsightResult]:
+    """Every test of every insight on one study, unadjusted (p_holm None): per engine present, pooled and
+    (crowd; ``by_repository``) pooled on one configuration per repository. Order: insight, then ``GROUPS``."""
+    units = configurations(data)
+    by_repository = side == "crowd" if by_repository is None else by_repository
+    groups: list[tuple[str, list[TrialPoint]]] = [
+        (f"{e} engine", [t for t in units if t.engine == e]) for e in pv.ENGINES if any(t.engine == e for t in units)
+    ]
+    if len(groups) != 1 or any(t.other_agents for t in units):
+        groups.append(("pooled", units))
+    if by_repository:
+        groups.append(("pooled, one configuration per repository", one_per_repository(units)))
+    out = []
+    for insight in INSIGHTS:
+        for group, members in groups:
+            kinds = [k for k in pv.KIND_LABEL if any(t.kind == k for t in data.scored if t.config_key in {
+                m.config_key for m in members})]  # fmt: skip
+            out.append(evaluate(insight, members, study=data.name, side=side, group=group, kinds=kinds))
+    return out
+
+
+def evaluate_all(sides: dict[str, StudyData]) -> dict[str, list[InsightResult]]:
+    """``evaluate_study`` for every side, with the Holm adjustment over every test of all sides together."""
+    raw = {side: evaluate_study(data, side) for side, data in sides.items()}
+    flat = [r for results in raw.values() for r in results]
+    adjusted = holm([r.p_value for r in flat])
+    out: dict[str, list[InsightResult]] = {}
+    k = 0
+    for side, results in raw.items():
+        out[side] = []
+        for r in results:
+            out[side].append(_decide(r, adjusted[k]))
+            k += 1
+    return out

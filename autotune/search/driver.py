@@ -77,12 +77,16 @@ from sim.config import ConfigError
 
 __all__ = [
     "Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "OWNER_ATTR", "CONFIG_ATTR",
-    "WarmConfig", "clip_params",
+    "WarmConfig", "clip_params", "OFFICIAL_SCORE_METRIC",
 ]  # fmt: skip
 
 OWNER_ATTR = "autotune:driver"  # system attr: {"host", "pid", "start"} of the driver running the trial
 BEAT_ATTR = "autotune:heartbeat"  # system attr: time.time() of the driver's latest heartbeat for the trial
 CONFIG_ATTR = "config"  # user attr an enqueued trial may carry: the full TrainConfig mapping it trains
+OFFICIAL_SCORE_METRIC = (
+    "official score [mph], measured: the trial's trained net in the exact engine, site median of its engine's "
+    "official protocol"
+)  # the study's metric name
 ENQUEUED_ATTR = "autotune:enqueued"  # system attr: the user attr keys a trial was enqueued with (kept by retries)
 RACE_OF = "race_of"  # user attr: the trial whose configuration this race run retrains with a fresh seed
 RACE_SEED = "race_seed"  # user attr: the race's fresh-seed index of the run
@@ -294,6 +298,8 @@ class Driver:
             load_if_exists=True,
         )
         study.set_user_attr("spec", self.spec.to_dict())
+        if study.metric_names is None:  # what the value is (optuna-dashboard shows it); a replay study names its own
+            study.set_metric_names([OFFICIAL_SCORE_METRIC])
         self.study = study
         self.recovered = self._fail_orphans(study)
         self._refresh_counts()

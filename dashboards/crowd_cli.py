@@ -33,7 +33,6 @@ import operator
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from autotune.cliutil import add_storage_arguments, fail
@@ -41,7 +40,6 @@ from sim.config import ConfigError
 
 if TYPE_CHECKING:
     from autotune.search.spec import StudySpec
-    from dashboards.spread import SpreadData
 
 
 __all__ = [

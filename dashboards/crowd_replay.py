@@ -118,12 +118,12 @@ def run_replay(
         raise ConfigError(f"workers: must be ≥ 1, got {workers}")
     tasks = replay_tasks(groups, seeds, max_iterations)
     work_dir.mkdir(parents=True, exist_ok=True)
-    results: dict[ReplayTask, measured.ReplayRun] = {}
+    results: dict[str, measured.ReplayRun] = {}  # by cache name
     todo = []
     for task in tasks:
         run = _cached(work_dir / task.cache_name())
         if run is not None:
-            results[task] = run
+            results[task.cache_name()] = run
             if progress is not None:
                 progress(task, run, True)
         else:
@@ -134,7 +134,7 @@ def run_replay(
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(dataclasses.asdict(run)))
         tmp.replace(path)
-        results[task] = run
+        results[task.cache_name()] = run
         if progress is not None:
             progress(task, run, False)
 
@@ -165,7 +165,7 @@ def run_replay(
                 claimed=sub.reported_score_mph,
                 claim_kind=sub.score_kind,
                 claim_confidence=sub.score_confidence,
-                runs=tuple(results[t] for t in mine),
+                runs=tuple(results[t.cache_name()] for t in mine),
             )
         )
     return measured.ReplayTable(command, seeds, max_iterations, tuple(entries))

@@ -362,7 +362,9 @@ def study_data(study: optuna.Study) -> StudyData:
                 frames=int(frames) if frames is not None else None,
                 crowd_id=str(crowd_id) if crowd_id else None,
                 engine=engine,
-                other_agents=int(agents) if engine == "v2" and _number(agents) is not None else None,
+                other_agents=int(agents)
+                if engine == "v2" and agents is not None and _number(agents) is not None
+                else None,
                 kind=kind,
                 confidence=confidence,
                 config_key=key,
@@ -382,7 +384,9 @@ def _running_best(
 ) -> dict[str, tuple[list[int], list[float], list[TrialPoint]]]:
     out: dict[str, tuple[list[int], list[float], list[TrialPoint]]] = {}
     for engine in pv.ENGINES:
-        order, best, holder = [], [], []
+        order: list[int] = []
+        best: list[float] = []
+        holder: list[TrialPoint] = []
         for t, x in zip(trials, xs, strict=True):
             if t.engine != engine or t.value is None:
                 continue
@@ -554,9 +558,7 @@ def importances(
     """
     units = configurations(data)
     if len(units) < min_configs:
-        return Empty(
-            f"{data.name}: importances need at least {min_configs} scored configurations, have {len(units)}"
-        )
+        return Empty(f"{data.name}: importances need at least {min_configs} scored configurations, have {len(units)}")
     full = _feature_matrix(units, FEATURES, standardise=False)
     varying = [i for i in range(len(FEATURES)) if np.ptp(full[:, i]) > 0]
     if not varying:

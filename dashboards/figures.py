@@ -132,7 +132,10 @@ def progress_figure(sides: dict[str, Progress | Empty]) -> go.Figure | Empty:
             )
         fig.update_xaxes(title_text="submission order" if source == "crowd" else "trial number", row=1, col=col)
         fig.update_yaxes(title_text="score [mph] (kind: see legend)", row=1, col=col)
-    fig.update_layout(title="Progress: score and each engine's running best", height=460, **LAYOUT)
+    fig.update_layout(
+        title="Progress: score and each engine's running best", height=560, legend={"orientation": "h", "y": -0.2},
+        **LAYOUT,
+    )  # fmt: skip
     return fig
 
 
@@ -372,6 +375,7 @@ def replay_figure(rows: Sequence[ClaimRow] | Empty) -> go.Figure | Empty:
         labels = [r.crowd_id.removeprefix("dt-") for r in mine]
         claim_kinds = [k for k in pv.KIND_LABEL if any(r.claim_kind == k for r in mine)]
         custom = _claim_custom(mine)
+        claim_custom = [[*c[:3], pv.KIND_LABEL[r.claim_kind], c[4]] for c, r in zip(custom, mine, strict=True)]
         fig.add_trace(
             go.Scatter(
                 x=labels,
@@ -379,7 +383,7 @@ def replay_figure(rows: Sequence[ClaimRow] | Empty) -> go.Figure | Empty:
                 mode="markers",
                 name=pv.series_name("claimed by the author", [engine], claim_kinds),
                 marker={"color": COLORS["crowd"], "symbol": pv.marker_symbol(engine, pv.CLAIMED), "size": 11},
-                customdata=[[c[0], c[1], c[2], pv.KIND_LABEL[r.claim_kind], c[4]] for c, r in zip(custom, mine)],
+                customdata=claim_custom,
                 hovertemplate=pv.HOVER,
                 meta=pv.series_meta([engine], claim_kinds, filterable=True),
             ),

@@ -62,9 +62,7 @@ def headline(automated: StudyData, crowd: StudyData, own_nets: Sequence[OwnNetSc
             f"({pv.ENGINE_LABEL[engine]}, {agents}; {pv.KIND_LABEL[pv.OWN_WEIGHTS]}, {measured.protocol}); "
             f"automated − human = {diff:+.2f} mph{same}."
         )
-    same_engine = max(
-        (t for t in claims if t.engine == engine), key=lambda t: (t.value, -t.number), default=None
-    )
+    same_engine = max((t for t in claims if t.engine == engine), key=lambda t: (t.value, -t.number), default=None)
     if same_engine is not None:
         lines.append(
             f"Best claim of the same engine (self-reported, not measured): {same_engine.value:.2f} mph — "

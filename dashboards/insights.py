@@ -18,7 +18,7 @@ pooled correlation partly measures the engine. Each insight is therefore tested
   latest), since two repositories hold half the rows.
 
 The unit is the configuration: identical settings count once (``extract.configurations``, score =
-mean of its rows). The p-values of every test in the table are Holm-adjusted together; an insight
+mean of its rows). The p-values of every test of one study's table are Holm-adjusted together; an insight
 *holds* in a row when the correlation has the expected sign and the adjusted p < ``ALPHA``. A row
 with fewer than ``MIN_POINTS`` configurations, or a constant setting or score, is undecided and
 takes no part in the correction. Spearman, not Pearson: settings span orders of magnitude and
@@ -62,7 +62,8 @@ METHOD = (
     "(v2 = 1) and the other agents (ranked; v1 has none: 0) — the Pearson correlation of the ranks of setting and "
     "score after least-squares residualisation on those covariates (those that vary), p from Student's t with "
     "n − 2 − k degrees of freedom. Crowd sensitivity: the pooled test on each repository's latest configuration. "
-    "All p-values in the table are Holm-adjusted together; an insight holds in a row when ρ has the claimed sign and "
+    "The p-values of all the tests in a study's table are Holm-adjusted together; an insight holds in a row when ρ has "
+    "the claimed sign and "
     f"the adjusted p < {ALPHA}. Rows with fewer than {MIN_POINTS} configurations, or a constant setting, are undecided "
     "and not counted in the correction."
 )
@@ -123,7 +124,9 @@ def _value(t: TrialPoint, variable: str) -> float | None:
     return t.settings.get(variable)
 
 
-def partial_spearman(x: Sequence[float], y: Sequence[float], covariates: np.ndarray) -> tuple[float, float, int]:
+def partial_spearman(
+    x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, covariates: np.ndarray
+) -> tuple[float, float, int]:
     """(ρ, two-sided p, degrees of freedom) of x and y given the covariate columns (n × k, any k ≥ 0), on ranks."""
     rx, ry = stats.rankdata(x), stats.rankdata(y)
     n = len(rx)
@@ -247,15 +250,10 @@ def evaluate_study(data: StudyData, side: str, *, by_repository: bool | None = N
 
 
 def evaluate_all(sides: dict[str, StudyData]) -> dict[str, list[InsightResult]]:
-    """``evaluate_study`` for every side, with the Holm adjustment over every test of all sides together."""
-    raw = {side: evaluate_study(data, side) for side, data in sides.items()}
-    flat = [r for results in raw.values() for r in results]
-    adjusted = holm([r.p_value for r in flat])
+    """``evaluate_study`` for every side, each side's tests Holm-adjusted together (one table, one family)."""
     out: dict[str, list[InsightResult]] = {}
-    k = 0
-    for side, results in raw.items():
-        out[side] = []
-        for r in results:
-            out[side].append(_decide(r, adjusted[k]))
-            k += 1
+    for side, data in sides.items():
+        results = evaluate_study(data, side)
+        adjusted = holm([r.p_value for r in results])
+        out[side] = [_decide(r, p) for r, p in zip(results, adjusted, strict=True)]
     return out

@@ -184,7 +184,7 @@ def _typed(cls: type, entry: Any, where: str) -> Any:
     """A dataclass from a JSON object, every field present and of its annotated type."""
     if not isinstance(entry, dict):
         raise MeasuredDataError(f"{where}: not an object")
-    values = {}
+    values: dict[str, Any] = {}
     for field in dataclasses.fields(cls):
         if field.name not in entry:
             raise MeasuredDataError(f"{where}: missing key '{field.name}'")

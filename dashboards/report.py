@@ -142,18 +142,18 @@ def build_report(
     replay: optuna.Study | None = None,
     spread: SpreadData | Empty | None = None,
     own_nets: Sequence[measured.OwnNetScore] | None = None,
-    replay_table: measured.ReplayTable | None | Empty = Empty("not loaded"),
+    replay_table: measured.ReplayTable | None = None,
     seed: int = 0,
 ) -> Report:
     """Extract and draw every panel of the comparison of ``automated`` with ``crowd`` (and its ``replay``).
 
     ``own_nets`` defaults to the shipped ``own_nets.json``, ``replay_table`` to the shipped
-    ``replay.json`` (None: not computed).
+    ``replay.json`` (which may not have been computed).
     """
     auto = extract.study_data(automated)
     crowd_data = extract.study_data(crowd)
-    own = measured.load_own_nets() if own_nets is None else list(own_nets)
-    table = measured.load_replay() if isinstance(replay_table, Empty) else replay_table
+    own = list(measured.load_own_nets() if own_nets is None else own_nets)
+    table = measured.load_replay() if replay_table is None else replay_table
     sides = {"autotune": auto, "crowd": crowd_data}
     studied: list[extract.ClaimRow] | Empty = Empty("no crowd replay study given")
     if replay is not None:
@@ -292,36 +292,43 @@ def _row_name(r: insights.InsightResult) -> str:
     return pv.series_name(r.study, r.engines, r.kinds)
 
 
-def _insights_html(report: Report) -> str:
+def _insights_html(report: Report, side: str) -> str:
     head = (
         "<tr><th>insight</th><th>data: study · engines · score kinds</th><th>test</th><th>statistic</th><th>n</th>"
         "<th>ρ</th><th>p</th><th>Holm p</th><th>holds</th><th>note</th></tr>"
     )
     body = []
-    for side in ("crowd", "autotune"):
-        for r in report.insights.get(side, []):
-            body.append(
-                f"<tr><td>{html.escape(r.insight.name)}</td><td>{html.escape(_row_name(r))}</td>"
-                f"<td>{html.escape(r.group)}</td><td>{html.escape(r.statistic)}</td><td>{r.n}</td>"
-                f"<td>{_fmt(r.value, '+.3f')}</td><td>{_fmt(r.p_value, '.2g')}</td><td>{_fmt(r.p_holm, '.2g')}</td>"
-                f"<td class='holds-{_holds(r)}'>{_holds(r)}</td><td>{html.escape(r.note)}</td></tr>"
-            )
-    return f"<table class='insights'>{head}{''.join(body)}</table>"
+    for r in report.insights.get(side, []):
+        body.append(
+            f"<tr><td>{html.escape(r.insight.name)}</td><td>{html.escape(_row_name(r))}</td>"
+            f"<td>{html.escape(r.group)}</td><td>{html.escape(r.statistic)}</td><td>{r.n}</td>"
+            f"<td>{_fmt(r.value, '+.3f')}</td><td>{_fmt(r.p_value, '.2g')}</td><td>{_fmt(r.p_holm, '.2g')}</td>"
+            f"<td class='holds-{_holds(r)}'>{_holds(r)}</td><td>{html.escape(r.note)}</td></tr>"
+        )
+    return f"<table class='insights' id='insights-{side}'>{head}{''.join(body)}</table>"
 
 
 def insights_markdown(report: Report) -> str:
-    """The insights table as markdown (optuna-dashboard note)."""
-    lines = [
-        "| insight | data: study · engines · score kinds | test | statistic | n | ρ | p | Holm p | holds |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
+    """The insights tables as markdown (optuna-dashboard note): one per study, each its own Holm family."""
+    lines: list[str] = []
     for side in ("crowd", "autotune"):
-        for r in report.insights.get(side, []):
+        if side not in report.insights:
+            continue
+        tested = sum(r.p_value is not None for r in report.insights[side])
+        lines += [
+            f"### {report.studies[side].name} ({figures.SIDE_NAMES[side]}; Holm over this table's {tested} tests)",
+            "",
+            "| insight | data: study · engines · score kinds | test | statistic | n | ρ | p | Holm p | holds |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        for r in report.insights[side]:
             lines.append(
-                f"| {r.insight.name} | {_row_name(r)} | {r.group} | {r.statistic} | {r.n} | {_fmt(r.value, '+.3f')} "
+                f"| {r.insight.name} | {_row_name(r)} | {r.group} | {r.statistic.replace('|', chr(92) + '|')} | {r.n} "
+                f"| {_fmt(r.value, '+.3f')} "
                 f"| {_fmt(r.p_value, '.2g')} | {_fmt(r.p_holm, '.2g')} | {_holds(r)} |"
             )
-    return "\n".join(lines)
+        lines.append("")
+    return "\n".join(lines).rstrip()
 
 
 _CSS = """
@@ -330,7 +337,7 @@ h1 { margin-bottom: 4px; } h2 { margin-top: 36px; border-bottom: 1px solid #ddd;
 .meta { color: #555; } .empty { padding: 18px; background: #f6f6f6; border-left: 4px solid #999; color: #444; }
 .method { color: #333; font-size: 14px; background: #f7f9fc; padding: 8px 12px; border-left: 3px solid #9ab; }
 .headline li { margin: 4px 0; } .sides { white-space: pre-wrap; font-family: ui-monospace, monospace; font-size: 13px; }
-#agents-filter { position: sticky; top: 0; background: #fff; padding: 8px 0; border-bottom: 1px solid #ddd; z-index: 5; }
+#agents-filter { position: sticky; top: 0; background: #fff; padding: 8px 0; border-bottom: 1px solid #ddd; }
 #agents-filter label { margin-right: 14px; font-size: 14px; }
 table.insights { border-collapse: collapse; font-size: 13px; }
 table.insights td, table.insights th { border: 1px solid #ccc; padding: 4px 8px; text-align: left; }
@@ -376,8 +383,7 @@ def render_html(report: Report) -> str:
         *(f"<li>{html.escape(line)}</li>" for line in report.headline.lines),
         "</ul>",
         "<h2 id='studies'>What is compared</h2>",
-        f"<div class='sides'>{html.escape(sides)}\n"
-        f"{html.escape(chr(10).join(_own_nets_lines(report.own_nets)))}</div>",
+        f"<div class='sides'>{html.escape(sides)}\n{html.escape(chr(10).join(_own_nets_lines(report.own_nets)))}</div>",
         "<p class='method'>Every score names its engine (v1: 2017, one car; v2: 2018–19, other agents sharing the "
         "net) and its kind: <b>measured</b> (a net scored by the exact engine with its engine's official protocol: "
         "the automated trials, the human nets' own weights, replayed crowd settings; filled markers) or "
@@ -387,7 +393,12 @@ def render_html(report: Report) -> str:
         f"<div id='agents-filter'><b>Other agents:</b> {boxes}</div>",
         "<h2 id='insights'>The four insights</h2>",
         f"<p class='method'>{html.escape(insights.METHOD)}</p>",
-        _insights_html(report),
+        *(
+            f"<h3>{html.escape(report.studies[side].name)} ({figures.SIDE_NAMES[side]}; Holm over this table's "
+            f"{sum(r.p_value is not None for r in report.insights[side])} tests)</h3>{_insights_html(report, side)}"
+            for side in ("crowd", "autotune")
+            if side in report.insights
+        ),
     ]
     plotly_js_included = False
     for section in report.sections:
@@ -428,7 +439,7 @@ def attach_to_dashboard(study: optuna.Study, report: Report, sections: Sequence[
             continue
         ids.append(save_plotly_graph_object(study, section.figure, graph_object_id=f"autotune-{section.key}"))
     empty = [f"* {s.title}: {s.figure.reason}" for s in report.sections if isinstance(s.figure, Empty)]
-    sides = [line for d in report.studies.values() for line in _side_lines(d)]
+    sides = [line for d in report.studies.values() for line in _side_lines(d)] + _own_nets_lines(report.own_nets)
     note = "\n".join(
         [
             f"# {report.title}",
@@ -454,4 +465,3 @@ def attach_to_dashboard(study: optuna.Study, report: Report, sections: Sequence[
     )
     save_note(study, note)
     return ids
-

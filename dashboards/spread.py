@@ -343,8 +343,8 @@ def spread_figure(data: SpreadData):  # noqa: ANN201 - plotly.graph_objects.Figu
         rows=1,
         cols=2,
         subplot_titles=(
-            f"the site's number under {seeds} protocol seeds",
-            "its sd over seeds (solid) and over resampled runs (dashed) against runs per evaluation",
+            f"the site's number, {seeds} protocol seeds each",
+            "its sd: over seeds (solid), over resampled runs (dashed)",
         ),
     )
     colors = ("#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#17becf")
@@ -354,11 +354,13 @@ def spread_figure(data: SpreadData):  # noqa: ANN201 - plotly.graph_objects.Figu
         color = colors[k % len(colors)]
         engine, agents = pv.ENGINE_LABEL[net.engine], pv.agents_label(net.engine, net.other_agents)
         label = _net_label(net)
+        parts = net.name.removeprefix("dt-").split("-")
+        short = f"{parts[0]} {parts[-1]} ({pv.ENGINE_LABEL[net.engine]})"
         measured = pv.series_name(label, [net.engine], [kind], f"{net.protocol} site median of {net.n[-1]} runs")
         custom = [[f"{net.name}, seed {seed}", engine, agents, pv.KIND_LABEL[kind], "exact"] for seed in net.seeds]
         fig.add_trace(
             go.Box(
-                x=[label] * len(s.full),
+                x=[short] * len(s.full),
                 y=s.full,
                 name=measured,
                 boxpoints="all",
@@ -377,7 +379,7 @@ def spread_figure(data: SpreadData):  # noqa: ANN201 - plotly.graph_objects.Figu
         if net.claimed is not None:
             fig.add_trace(
                 go.Scatter(
-                    x=[label],
+                    x=[short],
                     y=[net.claimed],
                     mode="markers",
                     name=pv.series_name(label, [net.engine], [pv.CLAIMED], "the author's report"),
@@ -426,6 +428,7 @@ def spread_figure(data: SpreadData):  # noqa: ANN201 - plotly.graph_objects.Figu
         )
     fig.add_hline(y=data.threshold, line_dash="dash", line_color="gray", row=1, col=2)
     fig.update_yaxes(title_text="score [mph]", row=1, col=1)
+    fig.update_xaxes(tickangle=0, row=1, col=1)
     fig.update_xaxes(title_text="runs per evaluation n (first n runs of the protocol)", type="log", row=1, col=2)
     fig.update_yaxes(title_text="sd [mph]", row=1, col=2)
     fig.update_layout(

@@ -98,6 +98,7 @@ class PageReport:
     figures: tuple[Figure, ...]
     rendered: bool  # every plotly graph div finished rendering before the timeout
     screenshot: Path | None
+    script_result: object = None  # what ``check_page(script=...)`` returned
 
     def problems(self) -> list[str]:
         """Human-readable problems: console errors, figures that did not render, have no traces or no points."""
@@ -134,10 +135,14 @@ def require_browser() -> None:
     pytest.skip(reason)
 
 
-def check_page(path: str | Path, screenshot: str | Path | None = None, *, timeout_s: float = 30.0) -> PageReport:
+def check_page(
+    path: str | Path, screenshot: str | Path | None = None, *, timeout_s: float = 30.0, script: str | None = None
+) -> PageReport:
     """Open ``path`` (a local HTML file) in headless Chromium, wait for plotly to render, report what it shows.
 
     Skips (or fails on CI) when Chromium is not installed. ``screenshot``: a PNG path to write.
+    ``script``: JavaScript (a function body) run once the figures rendered, before the screenshot, as a reader's
+    action; what it returns is ``PageReport.script_result``.
     """
     require_browser()
     from selenium import webdriver
@@ -165,6 +170,7 @@ def check_page(path: str | Path, screenshot: str | Path | None = None, *, timeou
                     rendered = True
                     break
                 time.sleep(0.1)
+            result = driver.execute_script(script) if script is not None else None
             raw = driver.execute_script(_COLLECT_JS)
             figures = tuple(
                 Figure(id=str(f["id"]), traces=int(f["traces"]), points=tuple(int(p) for p in f["points"])) for f in raw
@@ -191,6 +197,7 @@ def check_page(path: str | Path, screenshot: str | Path | None = None, *, timeou
         figures=figures,
         rendered=rendered,
         screenshot=shot,
+        script_result=result,
     )
 
 
@@ -204,6 +211,8 @@ def assert_report_ok(report: PageReport, *, min_figures: int = 1) -> PageReport:
     return report
 
 
-def assert_page_ok(path: str | Path, screenshot: str | Path | None = None, *, min_figures: int = 1) -> PageReport:
+def assert_page_ok(
+    path: str | Path, screenshot: str | Path | None = None, *, min_figures: int = 1, script: str | None = None
+) -> PageReport:
     """``check_page`` then ``assert_report_ok``: the one-call check for a report page."""
-    return assert_report_ok(check_page(path, screenshot), min_figures=min_figures)
+    return assert_report_ok(check_page(path, screenshot, script=script), min_figures=min_figures)

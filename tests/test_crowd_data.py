@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import statistics
+from pathlib import Path
 
 import pytest
 
 from dashboards import crowd_data as cd
+from dashboards import measured
 from tests.conftest import CROWD
 
 
@@ -176,3 +179,83 @@ def test_bad_header_and_duplicates() -> None:
 def test_frames_estimate(subs: tuple[cd.Submission, ...]) -> None:
     assert cd.frames_estimate(subs[0]) == 30 * 500000
     assert sum(cd.frames_estimate(s) is None for s in subs) == 1
+
+
+# --- the measured crowd shipped beside the data (issue 15 §3) ------------------------------------------------
+
+
+def test_shipped_own_net_scores(subs: tuple[cd.Submission, ...]) -> None:
+    """25 nets, each scored in its own engine with its official protocol, its own agents, beside its claim."""
+    shipped = measured.load_own_nets()
+    assert [s.crowd_id for s in shipped] == list(cd.net_ids())
+    by_id = {s.id: s for s in subs}
+    for s in shipped:
+        sub = by_id[s.crowd_id]
+        assert s.engine == sub.engine_version and s.protocol == {"v1": "v1-original", "v2": "v2-official"}[s.engine]
+        assert (s.seed, s.runs, s.frames) == {"v1": (2000, 10, 100_000), "v2": (1, 500, 2000)}[s.engine]
+        assert s.other_agents == sub.other_agents  # None in v1
+        assert (s.claimed, s.claim_kind, s.claim_confidence) == (
+            sub.reported_score_mph, sub.score_kind, sub.score_confidence,
+        )  # fmt: skip
+    doc = json.loads((cd.data_dir() / measured.OWN_NETS_FILE).read_text())
+    assert doc["command"] == measured.OWN_NETS_COMMAND == "python tools/crowd_measurements.py own-nets"
+    best_v2 = max((s for s in shipped if s.engine == "v2"), key=lambda s: s.score)
+    assert (best_v2.crowd_id, best_v2.score, best_v2.other_agents) == ("dt-jnorthrup-deeptraffic-v05", 75.80, 10)
+
+
+@pytest.mark.parametrize(
+    "nid", ["dt-huaweiren-deeptraffic-v01", "dt-vol0324-deeptraffic-v00", "dt-jeremy26-deep-traffic-v00"]
+)
+def test_shipped_own_net_scores_recompute_exactly(nid: str) -> None:
+    shipped = {s.crowd_id: s for s in measured.load_own_nets()}[nid]
+    again = measured.score_own_net(nid)
+    assert dataclasses.replace(again, seconds=0.0) == dataclasses.replace(shipped, seconds=0.0)
+
+
+def test_measured_files_fail_with_the_file_entry_and_key(tmp_path: Path) -> None:
+    doc = json.loads((cd.data_dir() / measured.OWN_NETS_FILE).read_text())
+    path = tmp_path / "own_nets.json"
+    del doc["nets"][3]["protocol"]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(measured.MeasuredDataError, match=r"own_nets.json: nets\[3\]: missing key 'protocol'"):
+        measured.load_own_nets(path)
+    doc["nets"][3]["protocol"] = "v2-official"
+    doc["nets"][1]["score"] = "fast"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(measured.MeasuredDataError, match=r"nets\[1\], key 'score': 'fast' is not a float"):
+        measured.load_own_nets(path)
+    path.write_text("[1, 2")
+    with pytest.raises(measured.MeasuredDataError, match="own_nets.json: not JSON"):
+        measured.load_own_nets(path)
+    assert measured.load_replay(tmp_path / "absent.json") is None  # the replay table is optional
+
+
+def test_replay_selection_and_table_round_trip(tmp_path: Path) -> None:
+    groups = measured.replay_selection()
+    assert [g[0].engine_version for g in groups] == ["v2"] * 20 + ["v1"] * 15
+    hashes = [g[0].config_hash for g in groups]
+    assert len(set(hashes)) == 35  # identical settings once
+    for g in groups:
+        assert {s.config_hash for s in g} == {g[0].config_hash} and g[0].reported_score_mph == max(
+            s.reported_score_mph or 0 for s in g
+        )
+    v2 = [g[0].reported_score_mph or 0 for g in groups[:20]]
+    assert v2 == sorted(v2, reverse=True) and v2[0] == 75.85
+    others = [s for s in cd.load_submissions() if s.scored and s.engine_version == "v2" and s.config_hash not in hashes]
+    assert max(s.reported_score_mph or 0 for s in others) <= v2[-1]  # nothing better-claimed left out
+    jordanott = next(g for g in groups if g[0].id == "dt-jordanott-deep-traffic-v03")
+    assert [s.id for s in jordanott] == [
+        "dt-jordanott-deep-traffic-v03",
+        "dt-darshanbagul-mit-6-s094-selfdrivingcars-v00",
+    ]
+    run = measured.ReplayRun(0, 5, "complete", 70.25, 3.5, None)
+    failed = measured.ReplayRun(1, 6, "failed", None, 1.0, "RuntimeError: boom")
+    entry = measured.ReplayEntry(
+        "dt-x-v00", "abc", ("dt-x-v00",), "v2", 3, "v2-official", 100, 71.0, "claimed", "high", (run, failed)
+    )
+    table = measured.ReplayTable("python tools/crowd_measurements.py replay", 2, None, (entry,))
+    path = measured.write_document(measured.replay_document(table), tmp_path / "replay.json")
+    assert measured.load_replay(path) == table
+    assert (entry.mean, entry.sd, entry.scores, entry.seconds) == (70.25, None, [70.25], 4.5)
+    doc = json.loads(path.read_text())
+    assert doc["entries"][0]["n"] == 1 and doc["entries"][0]["mean"] == 70.25

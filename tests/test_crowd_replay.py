@@ -8,6 +8,7 @@ task it hands a worker, and a retry that keeps what the trial was enqueued with.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -135,3 +136,66 @@ def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: 
     assert retry[0].user_attrs["crowd_id"] == v1.id and retry[0].user_attrs["retry_of"] == run.trial.number
     assert driver._launch_next(0) and driver.pool.tasks[2].config == driver.pool.tasks[0].config
     assert driver.pool.tasks[2].seed == driver.pool.tasks[0].seed
+
+
+TINY = ("dt-m-quadra-deeptraffic-v04", "dt-rahulpawar1489-deeptraffic-v15")  # v2 (3,834 weights), v1 (8,725)
+
+
+def test_replay_table_command_end_to_end(tmp_path: Path) -> None:
+    """``tools/crowd_measurements.py replay`` on two selected configurations (one per engine) × 2 seeds, capped at
+    200 iterations: the table ships claimed, each seed's official score, mean, sd, n and seconds; a rerun trains
+    nothing; a seed retrained in this process gives the same score."""
+    from dashboards import crowd_replay, extract, figures, measured
+
+    out, work = tmp_path / "replay.json", tmp_path / "work"
+    args = ["replay", "--ids", *TINY, "--seeds", "2", "--max-iterations", "200", "--work", str(work), "--out", str(out)]
+    script = Path(__file__).resolve().parents[1] / "tools" / "crowd_measurements.py"
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(script), *args], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    seconds = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr
+    table = measured.load_replay(out)
+    assert table is not None and (table.seeds, table.max_iterations) == (2, 200)
+    assert table.command == "python tools/crowd_measurements.py " + " ".join(args)
+    subs = {s.id: s for s in crowd_data.load_submissions()}
+    assert [e.crowd_id for e in table.entries] == list(TINY)
+    for e in table.entries:
+        sub = subs[e.crowd_id]
+        assert (e.engine, e.protocol, e.train_iterations, e.claimed) == (
+            sub.engine_version, {"v1": "v1-original", "v2": "v2-official"}[sub.engine_version], 200,
+            sub.reported_score_mph,
+        )  # fmt: skip
+        assert e.other_agents == sub.other_agents and e.config_hash == sub.config_hash
+        assert [(r.seed_index, r.seed, r.state) for r in e.runs] == [
+            (k, replay_seed(e.crowd_id, k), "complete") for k in range(2)
+        ]
+        assert all(0 <= s < 90 for s in e.scores) and e.sd is not None and e.seconds > 0  # 200 iterations: any speed
+    doc = json.loads(out.read_text())
+    assert [(d["n"], d["mean"]) for d in doc["entries"]] == [(2, e.mean) for e in table.entries]
+    assert len(list(work.glob("*.json"))) == 4
+    print(f"\nreplay table of 2 configurations × 2 seeds (200 iterations): {seconds:.0f} s")
+    # a rerun reads every seed from the work directory
+    proc = subprocess.run([sys.executable, str(script), *args], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
+    assert proc.returncode == 0 and proc.stdout.count("(cached)") == 4, proc.stdout
+    assert measured.load_replay(out) == table
+    # the same seed trained here scores the same (the table is reproducible)
+    (task, *_rest) = crowd_replay.replay_tasks([[subs[TINY[1]]]], 1, max_iterations=200)
+    assert crowd_replay.run_task(task).score == table.entries[1].runs[0].score
+    # and the report draws it: claim, each seed, mean ± sd, per engine
+    fig = figures.replay_figure(extract.replay_table_rows(table))
+    assert not isinstance(fig, extract.Empty) and sum(len(t.x) for t in fig.data) == 2 * (1 + 2 + 1)
+
+
+def test_replay_table_command_rejects_bad_arguments(tmp_path: Path) -> None:
+    script = Path(__file__).resolve().parents[1] / "tools" / "crowd_measurements.py"
+    for args, message in (
+        (["replay", "--ids", "dt-nobody-v00"], "--ids: dt-nobody-v00 not among the selected configurations"),
+        (["replay", "--ids", TINY[0], "--seeds", "0"], "seeds: must be ≥ 1"),
+        (["replay", "--ids", TINY[0], "--max-iterations", "0"], "max_iterations: must be ≥ 1"),
+    ):
+        proc = subprocess.run([sys.executable, str(script), *args, "--work", str(tmp_path / "w"), "--out",
+                               str(tmp_path / "r.json")], capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    assert not (tmp_path / "r.json").exists()

@@ -1,71 +1,120 @@
-"""The evaluation-spread panel's data (issue 9 §3): standard error and median band against the number of runs."""
+"""The spread panel (issue 15 §4): the site's own statistic under many protocol seeds, per net in its own engine."""
 
 from __future__ import annotations
 
-import math
+import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from autotune.convnet.netjson import load
-from autotune.learner.brain_policy import evaluate_net
-from dashboards.spread import compute_spread, runs_needed, spread_figure, spread_from_scores
+from dashboards import crowd_data, spread
+from dashboards import provenance as pv
 from sim.config import ConfigError
-
-NETS = Path(__file__).resolve().parents[1] / "dashboards" / "data" / "crowd" / "nets"
-
-
-def test_statistics_of_the_first_n_runs_computed_independently() -> None:
-    x = np.random.default_rng(7).normal(70.0, 1.5, 120).round(2)
-    s = spread_from_scores("synthetic", x, bootstrap=100, seed=3)
-    assert s.n == list(range(1, 121)) and s.scores == x.tolist()
-    assert math.isnan(s.se[0]) and math.isnan(s.sd[0])
-    for n in range(2, 121):
-        first = x[:n]
-        assert s.mean[n - 1] == pytest.approx(first.mean(), abs=1e-12)
-        assert s.sd[n - 1] == pytest.approx(np.std(first, ddof=1), rel=1e-9)
-        assert s.se[n - 1] == pytest.approx(np.std(first, ddof=1) / math.sqrt(n), rel=1e-9)
-        assert s.median[n - 1] == np.median(first)
-        assert s.median_lo[n - 1] <= s.median_hi[n - 1]
-    assert s.runs_projected == math.ceil((np.std(x, ddof=1) / 0.1) ** 2)
-    # the band narrows as runs accumulate
-    width = np.subtract(s.median_hi, s.median_lo)
-    assert width[100:].mean() < width[5:20].mean()
-    # seeded: the same seed gives the same band, another seed another one
-    again = spread_from_scores("synthetic", x, bootstrap=100, seed=3)
-    assert (again.median_lo, again.median_hi) == (s.median_lo, s.median_hi)
-    assert spread_from_scores("synthetic", x, bootstrap=100, seed=4).median_lo != s.median_lo
+from sim.protocols import site_median
 
 
-def test_runs_needed_is_where_se_stays_below_the_threshold() -> None:
-    nan = float("nan")
-    assert runs_needed([nan, 0.3, 0.05, 0.2, 0.08, 0.07], 0.1) == 5
-    assert runs_needed([nan, 0.09, 0.05], 0.1) == 2
-    assert runs_needed([nan, 0.05, 0.12], 0.1) is None
-    x = np.random.default_rng(1).normal(70.0, 0.6, 200)
-    s = spread_from_scores("net", x)
-    n = s.runs_needed
-    assert n is not None and 2 <= n <= 200
-    assert all(se < 0.1 for se in s.se[n - 1 :])
-    assert n == 2 or s.se[n - 2] >= 0.1
+@pytest.fixture(scope="module")
+def shipped() -> spread.SpreadData:
+    return spread.load_spread()
 
 
-def test_bad_input_names_the_argument() -> None:
-    with pytest.raises(ConfigError, match="scores"):
-        spread_from_scores("x", [70.0])
-    with pytest.raises(ConfigError, match="threshold"):
-        spread_from_scores("x", [70.0, 71.0], threshold=0)
+def test_runs_grid() -> None:
+    assert spread.runs_grid(500) == [1, 2, 3, 5, 10, 20, 30, 50, 100, 200, 300, 500]
+    assert spread.runs_grid(10) == [1, 2, 3, 5, 10]
+    assert spread.runs_grid(7) == [1, 2, 3, 5, 7]
 
 
-def test_spread_of_a_crowd_net_with_the_exact_evaluator() -> None:
-    net, settings = load(NETS / "dt-jnorthrup-deeptraffic-v05.json")
-    data = compute_spread([("jnorthrup", net, settings)], runs=60, frames=500, bootstrap=50)
-    ref = evaluate_net(net, settings, "v2-official", runs=60, frames=500)
-    (s,) = data.nets
-    assert s.scores == ref.scores  # the evaluator's per-run scores, in run order
-    assert (data.protocol, data.runs, data.frames) == ("v2-official", 60, 500)
-    assert np.mean(s.se[40:]) < np.mean(s.se[5:15])  # falls roughly as 1/√n
-    assert s.se[-1] == pytest.approx(np.std(ref.scores, ddof=1) / math.sqrt(60), rel=1e-9)
-    fig = spread_figure(data)
-    assert len(fig.data) == 3 and all(len(t.x) > 0 for t in fig.data)
+def test_shipped_spread_covers_each_net_in_its_own_engine(shipped: spread.SpreadData) -> None:
+    assert [n.name for n in shipped.nets] == list(spread.DEFAULT_NETS)
+    subs = {s.id: s for s in crowd_data.load_submissions()}
+    for net in shipped.nets:
+        _model, settings = crowd_data.load_net(net.name)
+        assert net.engine == settings.engine == subs[net.name].engine_version  # no v1 net scored in v2
+        assert net.protocol == {"v1": "v1-original", "v2": "v2-official"}[net.engine]
+        assert net.other_agents == (settings.other_agents if net.engine == "v2" else None)
+        assert len(net.seeds) >= 50 and net.seeds == list(range(net.seeds[0], net.seeds[0] + len(net.seeds)))
+        assert net.seeds[0] == {"v1": 2000, "v2": 1}[net.engine]  # the protocol's own seed first: the site's number
+        assert net.n == spread.runs_grid(net.n[-1]) and net.n[-1] == {"v1": 10, "v2": 500}[net.engine]
+        assert len(net.own_runs) == net.n[-1] and net.site[0][-1] == site_median(net.own_runs)
+        assert net.claimed == subs[net.name].reported_score_mph
+    assert {n.engine for n in shipped.nets} == {"v1", "v2"}
+
+
+def test_shipped_numbers_recompute_exactly(shipped: spread.SpreadData, tmp_path: Path) -> None:
+    """Two seeds of the v1 net and one of a v2 net, evaluated again with the exact evaluator (short prefixes: an
+    n-run evaluation is the first n runs of a longer one), match the shipped statistics to the last digit."""
+    v1 = next(n for n in shipped.nets if n.engine == "v1")
+    recomputed = spread.compute_net_spread(v1.name, 2, cache=tmp_path)
+    assert recomputed.site == v1.site[:2] and recomputed.mean == v1.mean[:2] and recomputed.own_runs == v1.own_runs
+    assert len(list(tmp_path.glob("*.json"))) == 2  # per-seed cache
+    again = spread.compute_net_spread(v1.name, 2, cache=tmp_path)  # read back, not evaluated again
+    assert again == recomputed
+    from autotune.learner.brain_policy import evaluate_net
+
+    v2 = next(n for n in shipped.nets if n.engine == "v2" and n.epsilon_test_time > 0)
+    net, settings = crowd_data.load_net(v2.name)
+    k = 7  # the 8th seed
+    result = evaluate_net(net, settings, v2.protocol, seed=v2.seeds[k], runs=20)
+    assert [site_median(result.scores[:n]) for n in v2.n if n <= 20] == v2.site[k][: v2.n.index(20) + 1]
+
+
+def test_spread_statistics_recomputed(shipped: spread.SpreadData) -> None:
+    for net in shipped.nets:
+        s = spread.spread_stats(net, shipped.threshold)
+        site = np.array(net.site)
+        assert s.sd == pytest.approx([float(np.std(site[:, j], ddof=1)) for j in range(len(net.n))], abs=1e-12)
+        assert s.full == [row[-1] for row in net.site]
+        assert s.runs_needed == spread.runs_needed(net.n, s.sd, shipped.threshold)
+        assert len(s.bootstrap_sd) == len(net.n) and s.bootstrap_sd == spread.bootstrap_sd(net.own_runs, net.n)
+        assert s.bootstrap_sd[-1] < s.bootstrap_sd[0]  # more runs per evaluation, less spread
+    greedy = next(n for n in shipped.nets if n.engine == "v2" and n.epsilon_test_time == 0)
+    exploring = next(n for n in shipped.nets if n.engine == "v2" and n.epsilon_test_time > 0)
+    # the v2 protocol fixes each run's traffic seed: a net that never explores gets one number under every seed
+    assert len({tuple(row) for row in greedy.site}) == 1  # the same statistic under all 50 seeds, for every n
+    assert max(spread.spread_stats(greedy).sd) < 1e-12 and spread.spread_stats(greedy).runs_needed == 1
+    assert spread.spread_stats(exploring).sd[-1] > 0 and len(set(spread.spread_stats(exploring).full)) > 1
+
+
+def test_site_median_fast_path_is_the_site_median() -> None:
+    rows = np.random.default_rng(2).uniform(10.0, 99.99, size=(50, 21)).round(2)
+    assert spread._site_medians(rows).tolist() == [site_median(r) for r in rows]
+    low = rows.copy()
+    low[:, 0] = 9.5  # "9.5" sorts after "10...": the slow path
+    assert spread._site_medians(low).tolist() == [site_median(r) for r in low]
+
+
+def test_runs_needed_is_where_sd_stays_below_the_threshold() -> None:
+    n = [1, 2, 3, 5, 10]
+    assert spread.runs_needed(n, [0.3, 0.05, 0.2, 0.08, 0.07], 0.1) == 5
+    assert spread.runs_needed(n, [0.09, 0.09, 0.05, 0.0, 0.0], 0.1) == 1
+    assert spread.runs_needed(n, [0.05, 0.05, 0.05, 0.05, 0.12], 0.1) is None
+
+
+def test_load_errors_name_the_file(tmp_path: Path, shipped: spread.SpreadData) -> None:
+    bad = tmp_path / "spread.json"
+    bad.write_text("{")
+    with pytest.raises(ConfigError, match="spread.json: not a spread file"):
+        spread.load_spread(bad)
+    doc = spread.spread_document(shipped)
+    doc["nets"][2]["protocol"] = "v2-official"  # a v1 net claimed to be scored in v2
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(ConfigError, match="engine 'v1' with protocol 'v2-official'"):
+        spread.load_spread(bad)
+    with pytest.raises(ConfigError, match="cannot read"):
+        spread.load_spread(tmp_path / "absent.json")
+    with pytest.raises(ConfigError, match="seeds: need at least 2"):
+        spread.compute_net_spread(spread.DEFAULT_NETS[0], 1, cache=None)
+
+
+def test_truncated_runs_and_figure(shipped: spread.SpreadData) -> None:
+    short = spread.load_spread_runs(50)
+    for net, full in zip(short.nets, shipped.nets, strict=True):
+        assert net.n == [n for n in full.n if n <= 50] or (net.n == full.n[:2])
+        assert [row[: len(net.n)] for row in full.site] == net.site
+    assert dataclasses.replace(spread.load_spread_runs(None), nets=()) == dataclasses.replace(shipped, nets=())
+    fig = spread.spread_figure(shipped)
+    assert len(fig.data) == 4 * len(shipped.nets)  # seeds box, the claim, sd over seeds, bootstrap sd
+    for trace in fig.data:
+        assert len(trace.y) > 0 and pv.ENGINE_LABEL[trace.meta["engines"][0]] in trace.name

@@ -7,8 +7,9 @@
                      [--spread-runs N | --no-spread]
 
 ``import`` writes the packaged crowd (``dashboards.crowd_data``) as an Optuna study, one COMPLETE
-trial per scored submission (idempotent); ``--own-nets`` first scores the 25 human nets with their
-own weights in their own engine and official protocol (exact evaluator) and stores the scores.
+trial per scored submission (idempotent), with the shipped own-weight scores of the 25 human nets
+(``dashboards.measured``); ``--own-nets`` scores them again first (exact evaluator, own engine and
+official protocol: the same numbers) and stores those.
 ``replay`` enqueues the selected crowd settings, K seeds each, as trials of the replay study
 (params under the search's names, the submission's full config in the ``config`` user attr, a seed
 fixed by (crowd id, seed index)) and runs them with the search driver on ``--workers`` Ray
@@ -334,7 +335,8 @@ def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "crowd",
         help="the human crowd's submissions as an Optuna study (import) or re-run by our learner (replay)",
-        description="import: write the 164-submission crowd sample as an Optuna study; replay: enqueue crowd "
+        description="import: write the crowd sample's 116 scored submissions (of 164) as an Optuna study whose values "
+        "are the authors' claims; replay: enqueue crowd "
         "settings as trials of a study that the search driver trains and scores with the exact engine.",
     )
     actions = p.add_subparsers(dest="crowd_action", metavar="<action>", required=True)
@@ -342,7 +344,9 @@ def add_parser(subparsers: Any) -> None:
     add_storage_arguments(imp, artifacts_help=None)
     imp.add_argument("--study", default="crowd", help="study name (default: crowd)")
     imp.add_argument(
-        "--own-nets", action="store_true", help="also score the 25 human nets with their own weights (exact engine)"
+        "--own-nets",
+        action="store_true",
+        help="score the 25 human nets with their own weights now (exact engine; default: the shipped scores)",
     )
     imp.set_defaults(func=run, command_name="crowd-import")
     rep = actions.add_parser(

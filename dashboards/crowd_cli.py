@@ -178,13 +178,10 @@ def score_own_nets(progress: Callable[[str], None] | None = None) -> dict[str, d
 
 
 def replay_seed(crowd_id: str, seed_index: int) -> int:
-    """The training seed of seed index k of a crowd setting: the same in every replay study."""
-    import zlib
+    """The training seed of seed index k of a crowd setting (``crowd_replay.replay_seed``, imported when used)."""
+    from dashboards import crowd_replay
 
-    import numpy as np
-
-    state = np.random.SeedSequence([zlib.crc32(crowd_id.encode()), int(seed_index)]).generate_state(1, np.uint32)
-    return int(state[0] >> 1)
+    return crowd_replay.replay_seed(crowd_id, seed_index)
 
 
 def enqueue_replay(study: Any, subs: list[Any], seeds: int) -> tuple[int, int, dict[str, str]]:

@@ -25,9 +25,19 @@ from dashboards import measured
 from sim.config import ConfigError
 from sim.protocols import OFFICIAL
 
-__all__ = ["ReplayTask", "replay_tasks", "run_task", "run_replay"]
+__all__ = ["ReplayTask", "replay_seed", "replay_tasks", "run_task", "run_replay"]
 
 REPORT_POINTS, QUICK_RUNS, QUICK_FRAMES = 5, 10, 2000  # as autotune crowd replay (crowd_cli.replay_spec)
+
+
+def replay_seed(crowd_id: str, seed_index: int) -> int:
+    """The training seed of seed index k of a crowd setting: the same in every replay (this table, any replay study)."""
+    import zlib
+
+    import numpy as np
+
+    state = np.random.SeedSequence([zlib.crc32(crowd_id.encode()), int(seed_index)]).generate_state(1, np.uint32)
+    return int(state[0] >> 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,8 +62,6 @@ def replay_tasks(
     groups: Sequence[Sequence[cd.Submission]], seeds: int, max_iterations: int | None = None
 ) -> list[ReplayTask]:
     """The tasks of ``groups`` (each: a configuration's rows, the first is trained) × ``seeds`` seeds."""
-    from dashboards.crowd_cli import replay_seed
-
     if seeds < 1:
         raise ConfigError(f"seeds: must be ≥ 1, got {seeds}")
     if max_iterations is not None and max_iterations < 1:

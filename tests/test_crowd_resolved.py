@@ -1,0 +1,46 @@
+"""All 164 crowd submissions resolve exactly as before the settings record (issue 13).
+
+``tests/data/crowd_configs_resolved.json`` was written by the code at commit 455ea62, before the
+change: for every submission its ``TrainConfig.to_mapping()`` and ``to_deepqlearn()``, the crowd
+study's encoded params and the parameter count, or the reason the learner rejects it. The code of
+today must give the same, row for row.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+
+from dashboards import crowd, crowd_data as cd
+from tests.conftest import ROOT
+
+FIXTURE = ROOT / "tests" / "data" / "crowd_configs_resolved.json"
+
+
+def _resolved(sub: cd.Submission) -> dict[str, Any]:
+    rec: dict[str, Any] = {"id": sub.id}
+    try:
+        config = cd.train_config(sub)
+    except cd.CrowdDataError as exc:
+        rec["skip"] = str(exc)
+        return rec
+    rec["config"] = config.to_mapping()
+    rec["deepqlearn"] = config.to_deepqlearn()
+    rec["params"] = crowd.encode_params(config)
+    rec["param_count"] = cd.param_count(config)
+    return json.loads(json.dumps(rec))  # tuples → lists, as the fixture holds them
+
+
+@pytest.fixture(scope="module")
+def pinned() -> dict[str, dict[str, Any]]:
+    return {r["id"]: r for r in json.loads(FIXTURE.read_text(encoding="utf-8"))["submissions"]}
+
+
+def test_every_submission_resolves_as_pinned(pinned: dict[str, dict[str, Any]]) -> None:
+    subs = cd.load_submissions()
+    assert [s.id for s in subs] == list(pinned) and len(subs) == 164
+    different = [s.id for s in subs if _resolved(s) != pinned[s.id]]
+    assert different == [], f"{len(different)} submission(s) resolve differently, e.g. {different[:3]}"
+    assert sum("skip" in r for r in pinned.values()) == 2

@@ -13,7 +13,8 @@ from typing import Any
 
 import pytest
 
-from dashboards import crowd, crowd_data as cd
+from dashboards import crowd
+from dashboards import crowd_data as cd
 from tests.conftest import ROOT
 
 FIXTURE = ROOT / "tests" / "data" / "crowd_configs_resolved.json"

@@ -36,7 +36,6 @@ _EXPORTS: dict[str, str] = {
     "quick_evaluate": "autotune.learner.quick_eval",
     # exact evaluation of a net
     "evaluate_official": "autotune.learner.official",
-    "net_settings": "autotune.learner.official",
     "official_protocol": "autotune.learner.official",
     "OFFICIAL_PROTOCOL": "autotune.learner.official",
     "evaluate_net": "autotune.learner.brain_policy",
@@ -46,7 +45,7 @@ _EXPORTS: dict[str, str] = {
     "parse_hidden": "autotune.convnet.spec",
     "format_hidden": "autotune.convnet.spec",
     "layer_sizes": "autotune.convnet.spec",
-    "NetSettings": "autotune.convnet.netjson",
+    "Settings": "autotune.convnet.settings",
     "NetFormatError": "autotune.convnet.netjson",
     "load_net": "autotune.convnet.netjson",
     "loads_net": "autotune.convnet.netjson",

@@ -41,8 +41,8 @@ def _noop(obs):  # noqa: ANN001, ANN202
     return np.zeros(len(obs), dtype=np.int64)
 
 
-def batch_fps(ruleset: str, agents: int, worlds: int, frames: int, driver: str) -> float:
-    config = EngineConfig(ruleset=ruleset, other_agents=agents)
+def batch_fps(ruleset: str, other_agents: int, worlds: int, frames: int, driver: str) -> float:
+    config = EngineConfig(ruleset=ruleset, other_agents=other_agents)
     sim = Simulator(config, worlds, frames)
     sim.seed_independent(1)
     start = time.perf_counter()
@@ -55,8 +55,8 @@ def batch_fps(ruleset: str, agents: int, worlds: int, frames: int, driver: str) 
     return worlds * frames / (time.perf_counter() - start)
 
 
-def single_fps(ruleset: str, agents: int, frames: int) -> float:
-    config = EngineConfig(ruleset=ruleset, other_agents=agents)
+def single_fps(ruleset: str, other_agents: int, frames: int) -> float:
+    config = EngineConfig(ruleset=ruleset, other_agents=other_agents)
     sim = Simulator(config, 1, frames)
     sim.seed_independent(1)
     start = time.perf_counter()
@@ -66,8 +66,8 @@ def single_fps(ruleset: str, agents: int, frames: int) -> float:
     return frames / (time.perf_counter() - start)
 
 
-def official_seconds(agents: int) -> float:
-    config = EngineConfig(ruleset="v2", lanes_side=1, patches_ahead=10, other_agents=agents)
+def official_seconds(other_agents: int) -> float:
+    config = EngineConfig(ruleset="v2", lanes_side=1, patches_ahead=10, other_agents=other_agents)
     policy = BUILTINS["heuristic_a"].bind(config)
     return evaluate(config, policy, "v2-official").wall_seconds
 
@@ -107,22 +107,22 @@ def main() -> None:
             cli_row(ruleset, 2)  # warm the on-disk compilation cache
             for threads in (1, 2):
                 rows.append(cli_row(ruleset, threads))
-    for ruleset, agents in CASES:  # warm-up: compile every shape once
+    for ruleset, other_agents in CASES:  # warm-up: compile every shape once
         for driver in ("python", "compiled"):
-            batch_fps(ruleset, agents, 2, 60, driver)
-        single_fps(ruleset, agents, 60)
+            batch_fps(ruleset, other_agents, 2, 60, driver)
+        single_fps(ruleset, other_agents, 60)
     official_seconds(10)
-    for ruleset, agents in CASES:
+    for ruleset, other_agents in CASES:
         for threads in (1, 2):
             numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
             for driver in ("python", "compiled"):
                 for worlds in (1, 64, 4096):
                     frames = max(2000, total // worlds) if worlds > 1 else int(1_000_000 * scale)
-                    fps = batch_fps(ruleset, agents, worlds, frames, driver)
+                    fps = batch_fps(ruleset, other_agents, worlds, frames, driver)
                     rows.append(
                         {
                             "ruleset": ruleset,
-                            "agents": agents,
+                            "agents": other_agents,
                             "batch": worlds,
                             "threads": threads,
                             "driver": driver,
@@ -133,11 +133,11 @@ def main() -> None:
         rows.append(
             {
                 "ruleset": ruleset,
-                "agents": agents,
+                "agents": other_agents,
                 "batch": "single-step",
                 "threads": 1,
                 "driver": "python",
-                "fps": single_fps(ruleset, agents, int(2_000_000 * scale)),
+                "fps": single_fps(ruleset, other_agents, int(2_000_000 * scale)),
             }
         )
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)

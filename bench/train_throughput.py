@@ -114,14 +114,16 @@ def bench_eval() -> dict[str, dict]:
     config = preset("network_basic")  # v2
     net = train(config, 1, quick_eval=False).convnet()
     out = {}
-    for agents in (0, 10):
+    for other_agents in (0, 10):
         times = []
         for _ in range(2):
             t = time.perf_counter()
-            ev = evaluate_official(net, config, other_agents=agents)
+            ev = evaluate_official(net, config, other_agents=other_agents)
             times.append(time.perf_counter() - t)
-        out[f"agents_{agents}"] = {"cold_seconds": times[0], "warm_seconds": times[1], "median_site": ev.median_site,
-                                   "mean": ev.mean, "target_seconds": 2.0 if agents == 10 else None}  # fmt: skip
+        out[f"agents_{other_agents}"] = {
+            "cold_seconds": times[0], "warm_seconds": times[1], "median_site": ev.median_site, "mean": ev.mean,
+            "target_seconds": 2.0 if other_agents == 10 else None,
+        }  # fmt: skip
     return out
 
 

@@ -1,8 +1,9 @@
 """The crowd as an Optuna study: one COMPLETE trial per scored submission, under the search's parameter names.
 
 So that optuna-dashboard and the report read the crowd exactly like an automated study, each
-submission's settings are encoded under the parameter names the search spaces use (contract:
-``lanes_side`` … ``one_minus_gamma`` …, ``n_layers``, ``neurons_i``, ``activation_i``), its value
+submission's settings are encoded by the search's one encoder (``space.encode``) in the paper's
+space (``crowd_spec``: ``lanes_side`` … ``one_minus_gamma`` …, ``n_layers``, ``neurons_i``,
+``activation_i``), with ranges from ``sim.fields`` (``distributions``), its value
 is the self-reported score and its provenance goes into user attributes. Unscored submissions and
 the two whose settings our learner refuses are skipped (Optuna needs a value for a COMPLETE trial;
 a FAIL trial would read as "the setting crashed"), and the import says how many and why.
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import functools
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -20,8 +22,10 @@ from typing import Any
 import optuna
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 
-from autotune.convnet import spec
 from autotune.learner.config import TrainConfig
+from autotune.search import space
+from autotune.search.space import DEFAULT_SPACE
+from autotune.search.spec import StudySpec, param_bounds, parse_spec
 from dashboards import crowd_data as cd
 from dashboards import provenance as pv
 from sim.protocols import OFFICIAL
@@ -35,7 +39,8 @@ __all__ = [
     "own_net_attrs",
     "ACTIVATION_CHOICES",
     "ImportResult",
-    "encode_params",
+    "crowd_spec",
+    "crowd_params",
     "distributions",
     "crowd_trials",
     "import_crowd",
@@ -56,71 +61,45 @@ REPLAY_METRIC = (
 )
 ACTIVATION_CHOICES = ("relu", "tanh", "sigmoid", "maxout", "linear", "svm")
 
-# name -> (kind, low, high, log): bounds wide enough for every valid TrainConfig; log only when all values > 0.
-_BOUNDS: dict[str, tuple[str, float, float, bool]] = {
-    "lanes_side": ("int", 0, 50, False),
-    "patches_ahead": ("int", 0, 70, False),
-    "patches_behind": ("int", 0, 70, False),
-    "other_agents": ("int", 0, 10, False),
-    "temporal_window": ("int", 0, 100, False),
-    "train_iterations": ("int", 1, 100_000_000, True),
-    "experience_size": ("int", 1, 2_000_000, True),
-    "start_learn_threshold": ("int", 0, 2_000_000, False),
-    "batch_size": ("int", 1, 4096, True),
-    "learning_rate": ("float", 1e-10, 10.0, True),
-    "l2_decay": ("float", 0.0, 10.0, False),
-    "momentum": ("float", 0.0, 1.0, False),
-    "one_minus_gamma": ("float", 1e-6, 1.0, True),
-    "learning_steps_total": ("int", 0, 1_000_000_000, False),
-    "learning_steps_burnin": ("int", 0, 1_000_000_000, False),
-    "epsilon_min": ("float", 0.0, 1.0, False),
-    "epsilon_test_time": ("float", 0.0, 1.0, False),
-    "n_layers": ("int", 0, 16, False),
-    "neurons": ("int", 1, 4096, True),
-}
+
+@functools.cache
+def crowd_spec() -> StudySpec:
+    """The space the crowd is encoded in (``space.encode``): the paper's (``space.DEFAULT_SPACE``), so the crowd and
+    the automated studies share parameter names."""
+    return parse_spec({"study": {"name": CROWD_STUDY, "n_trials": 1}, "space": DEFAULT_SPACE}, source="crowd")
 
 
-def encode_params(config: TrainConfig) -> dict[str, Any]:
-    """A config's settings under the search's parameter names, in sampling coordinates (γ as 1 − γ).
-
-    Layers: each layer with neurons counts (``fc:n:act`` → neurons n, its activation or 'linear';
-    ``svm:n`` → neurons n, activation 'svm'); ``lrn`` has no neurons and is not a parameter.
-    """
-    params: dict[str, Any] = {
-        name: getattr(config, name)
-        for name in _BOUNDS
-        if name not in ("one_minus_gamma", "n_layers", "neurons") and name != "other_agents"
-    }
-    if config.ruleset == "v2":
-        params["other_agents"] = config.other_agents
-    params["one_minus_gamma"] = float(f"{1.0 - config.gamma:.15g}")  # as search.space.encode: 0.3 stays 0.3
-    layers = [layer for layer in config.layers if isinstance(layer, (spec.FC, spec.SVM))]
-    params["n_layers"] = len(layers)
-    for i, layer in enumerate(layers):
-        if isinstance(layer, spec.FC):
-            params[f"neurons_{i}"] = layer.num_neurons
-            act = layer.activation if layer.activation in ACTIVATION_CHOICES else "linear"
-            params[f"activation_{i}"] = act
-        else:
-            params[f"neurons_{i}"] = layer.num_classes
-            params[f"activation_{i}"] = "svm"
-    return params
+def crowd_params(config: TrainConfig) -> dict[str, Any]:
+    """A configuration's params in the crowd study: ``space.encode`` in ``crowd_spec``, its active ones only
+    (``space.active``: a record shows the layers a net has, not the fixed shape's unused slots)."""
+    return space.active(space.encode(crowd_spec(), config))
 
 
 def distributions(all_params: Iterable[dict[str, Any]]) -> dict[str, BaseDistribution]:
-    """One distribution per parameter name, covering every value given (a log scale only where all are > 0)."""
+    """One distribution per parameter name, covering every value given.
+
+    The range is the setting's own in ``sim.fields`` (``spec.param_bounds``), so it holds every valid
+    config whatever the crowd holds; on a log scale where the paper's space samples it so (starting
+    where that space starts when the setting's range starts at 0), unless a value is ≤ 0. The
+    open-ended layout takes the paper space's largest values. Widened, if need be, to hold every value.
+    """
     values: dict[str, list[Any]] = {}
     for params in all_params:
         for name, value in params.items():
             values.setdefault(name, []).append(value)
+    dims = crowd_spec().dimensions
     out: dict[str, BaseDistribution] = {}
     for name, vals in values.items():
-        if name.startswith("activation_"):
+        base = name.rsplit("_", 1)[0] if name.startswith(("neurons_", "activation_")) else name
+        if base == "activation":
             out[name] = CategoricalDistribution(ACTIVATION_CHOICES)
             continue
-        kind, low, high, log = _BOUNDS["neurons" if name.startswith("neurons_") else name]
-        low, high = min(low, min(vals)), max(high, max(vals))
-        log = log and low > 0
+        kind, low, high = param_bounds(base)
+        paper = dims[base]
+        assert paper.low is not None and paper.high is not None
+        log = paper.log and min(vals) > 0
+        low = paper.low if log and low <= 0 else low
+        low, high = min(low, *vals), max(paper.high if high is None else high, *vals)
         if kind == "int":
             out[name] = IntDistribution(int(low), int(high), log=log)
         else:
@@ -159,7 +138,7 @@ def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | N
         "config_hash": sub.config_hash,
         "score_source": sub.score_source,
         "engine_version": sub.engine_version,
-        "trainer_method": sub.trainer_method,
+        "trainer_method": sub.settings.method,
         "hidden_layers": sub.hidden_layers,
         "is_default_template": sub.is_default_template,
         "same_config_as": sub.same_config_as,
@@ -169,7 +148,7 @@ def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | N
         "settings": config.to_deepqlearn(),
         "input_size": config.net_inputs,
         "num_states": config.num_states,
-        "param_count": cd.param_count(config),
+        "param_count": config.param_count,
         "frames_simulated": cd.frames_estimate(sub) or cd.FRAMES_PER_ITERATION * config.train_iterations,
         "official_protocol": OFFICIAL[sub.engine_version],
     }
@@ -195,7 +174,7 @@ def crowd_trials(
         except cd.CrowdDataError as exc:
             skipped[sub.id] = str(exc).removeprefix(f"{sub.id}: ")
             continue
-        kept.append((sub, config, encode_params(config)))
+        kept.append((sub, config, crowd_params(config)))
     dists = distributions(p for _s, _c, p in kept)
     trials = []
     now = dt.datetime.now()  # Optuna needs a start time; undated rows get the import's (version_date stays None)

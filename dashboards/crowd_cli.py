@@ -161,9 +161,7 @@ def compile_filter(expr: str, columns: list[str]) -> Callable[[dict[str, Any]], 
 
 def _row_namespace(sub: Any) -> dict[str, Any]:
     """A submission under its CSV column names and its record field names."""
-    import dataclasses
-
-    return {**{f.name: getattr(sub, f.name) for f in dataclasses.fields(sub)}, **sub.row()}
+    return dict(sub.namespace())
 
 
 def score_own_nets(progress: Callable[[str], None] | None = None) -> dict[str, dict[str, Any]]:
@@ -202,7 +200,7 @@ def enqueue_replay(study: Any, subs: list[Any], seeds: int) -> tuple[int, int, d
         except crowd_data.CrowdDataError as exc:
             skipped[sub.id] = str(exc)
             continue
-        params = crowd.encode_params(config)
+        params = crowd.crowd_params(config)
         for k in range(seeds):
             if (sub.id, k) in present:
                 existing += 1
@@ -444,7 +442,7 @@ def _replay(args: argparse.Namespace) -> int:
     spec = replay_spec(
         args.study, storage=args.storage, workers=args.workers,
         n_trials=sum(1 for t in trials if "retry_of" not in t.user_attrs),  # exactly the enqueued ones
-        params=[crowd.encode_params(TrainConfig.from_mapping(t.user_attrs[CONFIG_ATTR]))
+        params=[crowd.crowd_params(TrainConfig.from_mapping(t.user_attrs[CONFIG_ATTR]))
                 for t in trials if CONFIG_ATTR in t.user_attrs],
     )  # fmt: skip
     if waiting:

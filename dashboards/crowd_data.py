@@ -2,9 +2,11 @@
 
 Data only (no optuna, torch or ray): ``load_submissions()`` parses and validates
 ``data/crowd/submissions.csv`` into typed ``Submission`` records, failing with ``CrowdDataError``
-naming the row, the id and the column. A blank hyperparameter is kept as ``None``: the file did not
-set it, so deepqlearn's library default applies — ``train_config`` builds the nested (net.js-style)
-mapping that makes ``TrainConfig.from_mapping`` apply exactly those defaults.
+naming the row, the id and the column. A submission is its provenance, the curators' columns and
+the DeepTraffic settings the file sets — ``autotune.convnet.settings.Settings``, whose columns,
+types and names come from ``sim.fields`` (read by its one reader). A blank setting is kept as
+``None``: the file did not set it, so deepqlearn's library default applies — ``train_config``
+fills it as net.js does (``Settings.filled``).
 """
 
 from __future__ import annotations
@@ -21,9 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from autotune.convnet import netjson, spec
-from autotune.learner.config import TrainConfig
+from autotune.convnet.settings import Settings, read
+from autotune.learner.config import TrainConfig, parse_layers
 from sim import fields
-from sim.config import ConfigError, nearest_key_error
+from sim.config import ConfigError, FieldValueError, did_you_mean, nearest_key_error
 
 __all__ = [
     "CrowdDataError",
@@ -35,7 +38,6 @@ __all__ = [
     "load_submissions",
     "parse_submissions",
     "train_config",
-    "param_count",
     "frames_estimate",
     "net_ids",
     "net_path",
@@ -44,7 +46,6 @@ __all__ = [
 
 SCORE_KINDS = ("claimed", "local", "approx", "official-example")
 SCORE_CONFIDENCES = ("high", "medium", "low")
-ENGINES = ("v1", "v2")
 FRAMES_PER_ITERATION = 30  # train.js: totalFrames = 30·trainIterations
 
 
@@ -54,7 +55,8 @@ class CrowdDataError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class Submission:
-    """One crowd submission (one row of submissions.csv); ``None`` = blank cell (not set in the file)."""
+    """One crowd submission (one row of submissions.csv): where it comes from, the DeepTraffic settings the file
+    sets (``settings``; None = blank cell, not set in the file), and what the crowd's curators read off it."""
 
     id: str
     """``dt-<owner>--<repo>-vNN``: unique row id."""
@@ -68,46 +70,13 @@ class Submission:
     """Author date of that commit (None for the rows read without a snapshot)."""
     version_index: int
     """Chronological order of this version within its repository."""
-    lanes_side: int
-    """lanesSide [lanes] (column lanesSide)."""
-    patches_ahead: int
-    """patchesAhead [rows] (column patchesAhead)."""
-    patches_behind: int
-    """patchesBehind [rows] (column patchesBehind)."""
-    train_iterations: int | None
-    """trainIterations [decisions] (column trainIterations)."""
-    other_agents: int | None
-    """otherAgents [cars] (column otherAgents); None in v1-engine files."""
-    temporal_window: int | None
-    """deepqlearn temporal_window (None: library default 1)."""
+    settings: Settings
+    """The settings the file sets, under the columns of ``sim.fields`` (lanesSide … engine_version,
+    trainer_method); its trainer method is 'sgd' etc., or None for the CSV's 'default(…)' (no tdtrainer_options)."""
     hidden_layers: str
     """Hidden layers, ``fc:<n>:<act>|svm:<n>|lrn``; '' = linear Q-function."""
     num_hidden_layers: int
     """Count of hidden layers."""
-    learning_rate: float | None
-    """Trainer learning rate (None: Trainer default 0.01)."""
-    momentum: float | None
-    """Trainer momentum (None: Trainer default 0.9 when options were given)."""
-    batch_size: int | None
-    """Trainer batch size."""
-    l2_decay: float | None
-    """Trainer L2 decay (None: Trainer default 0)."""
-    l1_decay: float | None
-    """Trainer L1 decay (None: 0)."""
-    gamma: float | None
-    """Discount γ (None: deepqlearn default 0.8)."""
-    experience_size: int | None
-    """Replay memory size (None: 30000)."""
-    start_learn_threshold: int | None
-    """Learning start threshold (None: ⌊min(0.1·experience, 1000)⌋)."""
-    learning_steps_total: int | None
-    """Age at which ε reaches ε_min (None: 100000)."""
-    learning_steps_burnin: int | None
-    """Age until which ε = 1 (None: 3000)."""
-    epsilon_min: float | None
-    """Exploration floor (None: 0.05)."""
-    epsilon_test_time: float | None
-    """Exploration at test time (None: 0.01)."""
     num_inputs_formula_ok: bool
     """num_inputs, num_actions and input size agree with the formulas."""
     n_params: int
@@ -118,16 +87,12 @@ class Submission:
     """Self-reported score [mph]; None = no score stated."""
     score_source: str | None
     """Where the score is stated (short quote)."""
-    engine_version: str
-    """'v2' iff the file assigns otherAgents, else 'v1'."""
     notes: str | None
     """Provenance, pairing assumptions, oddities."""
     score_kind: str | None
     """claimed | local | approx | official-example (None when unscored)."""
     score_confidence: str | None
     """high | medium | low (None when unscored)."""
-    trainer_method: str
-    """tdtrainer method; 'default(...)' = no tdtrainer_options in the file."""
     weights_match_config: bool | None
     """Appended weights have the structure the config builds (None: no weights)."""
     weights_structure: str | None
@@ -158,70 +123,58 @@ class Submission:
         """Whether the submission states a score."""
         return self.reported_score_mph is not None
 
+    def __getattr__(self, name: str) -> Any:
+        """A setting by its field name: ``sub.other_agents`` is ``sub.settings.other_agents`` (None: not set)."""
+        settings = self.__dict__.get("settings")
+        if settings is None or name.startswith("_") or fields.name_of(name) != name:
+            raise AttributeError(f"'Submission' object has no attribute '{name}'")
+        return getattr(settings, name)
+
+    @property
+    def engine_version(self) -> str:
+        """'v2' iff the file assigns otherAgents, else 'v1' (the CSV's engine_version column)."""
+        return self.settings.engine
+
     def row(self) -> dict[str, Any]:
-        """The record under the CSV's column names (dates as ISO strings)."""
+        """The record under the CSV's column names (dates as ISO strings; settings the file does not set: None)."""
         out = {}
-        for column, field, _kind in COLUMNS:
-            value = getattr(self, field)
+        for column, name, _kind in COLUMNS:
+            owner = self.settings if fields.name_of(column) is not None else self
+            value = getattr(owner, name)
             out[column] = value.isoformat() if isinstance(value, dt.date) else value
         return out
 
+    def namespace(self) -> dict[str, Any]:
+        """Every value under its record name (settings by their snake_case names) and its CSV column name."""
+        own = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "settings"}
+        return {**own, **self.settings.values(), **self.row()}
 
-# CSV column -> (record field, kind); kinds end in '?' when a blank cell is allowed (-> None).
-_KINDS: dict[str, tuple[str, str]] = {
-    "lanesSide": ("lanes_side", "int"),
-    "patchesAhead": ("patches_ahead", "int"),
-    "patchesBehind": ("patches_behind", "int"),
-    "trainIterations": ("train_iterations", "int?"),
-    "otherAgents": ("other_agents", "int?"),
-    "version_date": ("version_date", "date?"),
-    "version_index": ("version_index", "int"),
-    "temporal_window": ("temporal_window", "int?"),
-    "hidden_layers": ("hidden_layers", "str?"),
-    "num_hidden_layers": ("num_hidden_layers", "int"),
-    "learning_rate": ("learning_rate", "float?"),
-    "momentum": ("momentum", "float?"),
-    "batch_size": ("batch_size", "int?"),
-    "l2_decay": ("l2_decay", "float?"),
-    "l1_decay": ("l1_decay", "float?"),
-    "gamma": ("gamma", "float?"),
-    "experience_size": ("experience_size", "int?"),
-    "start_learn_threshold": ("start_learn_threshold", "int?"),
-    "learning_steps_total": ("learning_steps_total", "int?"),
-    "learning_steps_burnin": ("learning_steps_burnin", "int?"),
-    "epsilon_min": ("epsilon_min", "float?"),
-    "epsilon_test_time": ("epsilon_test_time", "float?"),
-    "num_inputs_formula_ok": ("num_inputs_formula_ok", "bool"),
-    "n_params": ("n_params", "int"),
-    "has_weights": ("has_weights", "bool"),
-    "reported_score_mph": ("reported_score_mph", "float?"),
-    "score_source": ("score_source", "text?"),
-    "notes": ("notes", "text?"),
-    "score_kind": ("score_kind", "text?"),
-    "score_confidence": ("score_confidence", "text?"),
-    "weights_match_config": ("weights_match_config", "bool?"),
-    "weights_structure": ("weights_structure", "text?"),
-    "same_config_as": ("same_config_as", "text?"),
-    "is_default_template": ("is_default_template", "bool"),
-    "layer_defs_missing": ("layer_defs_missing", "bool"),
-    "weights_sha1_12": ("weights_sha1_12", "text?"),
-    "num_inputs_declared": ("num_inputs_declared", "int"),
-    "input_layer_size": ("input_layer_size", "int?"),
-    "net_inputs_std": ("net_inputs_std", "int"),
-    "manual_transcription": ("manual_transcription", "bool"),
-    "in_nets_dir": ("in_nets_dir", "bool"),
-}
-_ORDER = (
-    "id,repo,path,commit,version_date,version_index,lanesSide,patchesAhead,patchesBehind,trainIterations,otherAgents,"
-    "temporal_window,hidden_layers,num_hidden_layers,learning_rate,momentum,batch_size,l2_decay,l1_decay,gamma,"
-    "experience_size,start_learn_threshold,learning_steps_total,learning_steps_burnin,epsilon_min,epsilon_test_time,"
-    "num_inputs_formula_ok,n_params,has_weights,reported_score_mph,score_source,engine_version,notes,score_kind,"
-    "score_confidence,trainer_method,weights_match_config,weights_structure,same_config_as,is_default_template,"
-    "layer_defs_missing,config_hash,weights_sha1_12,num_inputs_declared,input_layer_size,net_inputs_std,"
-    "manual_transcription,in_nets_dir"
-).split(",")
-COLUMNS: tuple[tuple[str, str, str], ...] = tuple((c, *_KINDS.get(c, (c, "text"))) for c in _ORDER)
-"""(CSV column, record field, kind) in file order; kinds: int, float, bool, date, str, text (+ '?' = blank allowed)."""
+
+def _column_kind(f: dataclasses.Field[Any]) -> str:
+    """A column's kind from its annotation: int, float, bool, date, text (+ '?': blank allowed, None); str: blank
+    is '' (the hidden layers of a linear Q-function)."""
+    text = str(f.type)
+    base = text.split(" | ")[0].removeprefix("dt.")
+    if f.name == "hidden_layers":
+        return "str"
+    return {"str": "text"}.get(base, base) + ("?" if text.endswith("| None") else "")
+
+
+def _setting_kind(f: fields.Field) -> str:
+    """A settings column's kind: the table's type; blank allowed (not set) unless the file must set it."""
+    return {int: "int", float: "float", str: "text"}[f.kind] + ("" if f.required else "?")
+
+
+COLUMNS: tuple[tuple[str, str, str], ...] = (
+    *((f.name, f.name, _column_kind(f)) for f in dataclasses.fields(Submission)[:6]),
+    *((f.alias or f.name, f.name, _setting_kind(f)) for f in fields.FIELDS),
+    *((f.name, f.name, _column_kind(f)) for f in dataclasses.fields(Submission)[7:]),
+)
+"""(CSV column, record field, kind): provenance, then every ``sim.fields`` setting, then the curators' columns.
+
+Kinds: int, float, bool, date, str ('' when blank), text (+ '?' = blank allowed, None). A settings
+column the file lacks is not set in any row."""
+_PROVENANCE = tuple(f.name for f in dataclasses.fields(Submission) if f.name != "settings")
 
 
 def data_dir() -> Path:
@@ -262,8 +215,8 @@ def _parse_cell(kind: str, text: str) -> Any:
 
 def _check_row(sub: Submission) -> tuple[str, str] | None:
     """(column, problem) of the first semantic inconsistency in a parsed row, else None."""
-    if sub.engine_version not in ENGINES:
-        return "engine_version", f"{sub.engine_version!r} is not one of {', '.join(ENGINES)}"
+    if sub.settings.ruleset is None:
+        return "engine_version", "is blank"
     if sub.score_kind is not None and sub.score_kind not in SCORE_KINDS:
         return "score_kind", f"{sub.score_kind!r} is not one of {', '.join(SCORE_KINDS)}"
     if sub.score_confidence is not None and sub.score_confidence not in SCORE_CONFIDENCES:
@@ -272,7 +225,7 @@ def _check_row(sub: Submission) -> tuple[str, str] | None:
         return "score_kind", "a scored row needs score_kind and score_confidence"
     if sub.reported_score_mph is not None and not 0 < sub.reported_score_mph < 100:
         return "reported_score_mph", f"{sub.reported_score_mph} mph is not a plausible DeepTraffic score"
-    if (sub.other_agents is None) != (sub.engine_version == "v1"):
+    if (sub.settings.other_agents is None) != (sub.engine_version == "v1"):
         return "otherAgents", "must be blank exactly for v1-engine rows"
     hidden = [p for p in sub.hidden_layers.split("|") if p] if sub.hidden_layers else []
     if len(hidden) != sub.num_hidden_layers:
@@ -286,31 +239,37 @@ def parse_submissions(text: str, where: str = "submissions.csv") -> tuple[Submis
     """Parse and validate submissions CSV text; ``CrowdDataError`` names the row, id and column."""
     reader = csv.DictReader(io.StringIO(text))
     header = list(reader.fieldnames or [])
+    known = [c for c, _f, _k in COLUMNS]
     for column in header:
-        if column not in _ORDER:
-            try:
-                raise nearest_key_error(f"{where}: column", column, _ORDER)
-            except ConfigError as exc:
-                raise CrowdDataError(str(exc)) from None
-    missing = [c for c in _ORDER if c not in header]
+        if column not in known:
+            raise CrowdDataError(f"{where}: unknown column '{column}'{did_you_mean(column, known)}")
+    missing = [c for c, _f, kind in COLUMNS if c not in header and (c in _PROVENANCE or not kind.endswith("?"))]
     if missing:
         raise CrowdDataError(f"{where}: missing column(s) {', '.join(missing)}")
     out: list[Submission] = []
     seen: dict[str, int] = {}
     for number, raw in enumerate(reader, start=1):
         rid = raw.get("id") or "?"
-        values: dict[str, Any] = {}
+        own: dict[str, Any] = {}
+        given: dict[str, Any] = {}
         if None in raw:
             raise CrowdDataError(f"{where} row {number} (id {rid}): more cells than columns")
-        for column, field, kind in COLUMNS:
+        for column, _name, kind in COLUMNS:
+            if column not in header:
+                continue
             cell = raw[column]
             if cell is None:
                 raise CrowdDataError(f"{where} row {number} (id {rid}), column {column}: missing cell")
             try:
-                values[field] = _parse_cell(kind, cell)
+                value = _parse_cell(kind, cell)
             except ValueError as exc:
                 raise CrowdDataError(f"{where} row {number} (id {rid}), column {column}: {exc}") from None
-        sub = Submission(**values)
+            (given if fields.name_of(column) is not None else own)[column] = value
+        try:
+            values, _others = read(given)
+        except FieldValueError as exc:
+            raise CrowdDataError(f"{where} row {number} (id {rid}), column {exc.name}: {exc.problem}") from None
+        sub = Submission(**own, settings=Settings(**values))
         problem = _check_row(sub)
         if problem is not None:
             raise CrowdDataError(f"{where} row {number} (id {rid}), column {problem[0]}: {problem[1]}")
@@ -328,68 +287,26 @@ def load_submissions() -> tuple[Submission, ...]:
     return parse_submissions(path.read_text(encoding="utf-8"), where=str(path.name))
 
 
-def _trainer_options(sub: Submission) -> dict[str, Any] | None:
-    if sub.trainer_method.startswith("default"):
-        return None  # no tdtrainer_options in the file: the Brain's own trainer options apply
-    options: dict[str, Any] = {"method": sub.trainer_method}
-    for key in fields.TRAINER_NAMES:
-        value = getattr(sub, key)
-        if value is not None:
-            options[key] = value
-    return options
-
-
-def config_mapping(sub: Submission) -> dict[str, Any]:
-    """The nested (net.js-style) mapping of a submission: only what the file set, so blanks take library defaults."""
-    out: dict[str, Any] = {
-        "ruleset": sub.engine_version,
-        "lanesSide": sub.lanes_side,
-        "patchesAhead": sub.patches_ahead,
-        "patchesBehind": sub.patches_behind,
-        "hidden_layers": "" if sub.layer_defs_missing else sub.hidden_layers,
-    }
-    if sub.train_iterations is not None:
-        out["trainIterations"] = sub.train_iterations
-    if sub.other_agents is not None:
-        out["otherAgents"] = sub.other_agents
-    opt: dict[str, Any] = {}
-    for key in fields.OPT_NAMES:
-        value = getattr(sub, key)
-        if value is not None:
-            opt[key] = value
-    trainer = _trainer_options(sub)
-    if trainer is not None:
-        opt["tdtrainer_options"] = trainer
-    out["opt"] = opt
-    return out
-
-
 def train_config(sub: Submission) -> TrainConfig:
-    """The submission's ``TrainConfig`` (blanks → deepqlearn / convnetjs defaults, as the game applied them).
+    """The submission's ``TrainConfig``: its settings, what it leaves unset filled as the game filled it (net.js:
+    deepqlearn's and the Trainer's defaults, ``Settings.filled``), and its hidden layers (none when its layer_defs
+    never reached the Brain).
 
     Raises ``CrowdDataError`` naming the id when the settings fall outside what our learner accepts
     (e.g. momentum 5, an empty replay memory, a 4-action net); the rest of the crowd is unaffected.
     An unset trainIterations takes the template's 10,000.
     """
+    layers = "" if sub.layer_defs_missing else sub.hidden_layers
     try:
-        return TrainConfig.from_mapping(config_mapping(sub))
+        return TrainConfig.from_settings(sub.settings, nested=True, layers=parse_layers(layers))
     except ConfigError as exc:
         raise CrowdDataError(f"{sub.id}: {exc}") from None
 
 
-def param_count(config: TrainConfig) -> int:
-    """Weights + biases of the net the config builds (fc layers; maxout/svm/lrn add none)."""
-    sizes = spec.layer_sizes(config.expanded_layers)
-    return sum(
-        (n_in + 1) * n_out
-        for layer, (n_in, n_out) in zip(config.expanded_layers, sizes, strict=True)
-        if isinstance(layer, spec.FC)
-    )
-
-
 def frames_estimate(sub: Submission) -> int | None:
     """Frames simulated to train the submission, 30·trainIterations (None when unset)."""
-    return None if sub.train_iterations is None else FRAMES_PER_ITERATION * sub.train_iterations
+    iterations = sub.settings.train_iterations
+    return None if iterations is None else FRAMES_PER_ITERATION * iterations
 
 
 def net_ids() -> tuple[str, ...]:
@@ -406,7 +323,7 @@ def net_path(submission_id: str) -> Path:
     return path
 
 
-def load_net(submission_id: str) -> tuple[spec.ConvNet, netjson.NetSettings]:
+def load_net(submission_id: str) -> tuple[spec.ConvNet, Settings]:
     """A packaged net and its settings, cross-validated (``autotune.load_net_and_settings``)."""
     return netjson.load(net_path(submission_id))
 

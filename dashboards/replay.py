@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from autotune.convnet.netjson import NetSettings
+from autotune.convnet.settings import Settings
 from autotune.convnet.spec import ConvNet
 from autotune.learner.brain_policy import BrainPolicy, engine_config
 from sim import engine, rules
@@ -157,7 +157,7 @@ def safety_view(
 
 def record_run(
     net: ConvNet,
-    settings: NetSettings,
+    settings: Settings,
     *,
     name: str = "net",
     ruleset: str | None = None,
@@ -186,7 +186,9 @@ def record_run(
 
     sim = Simulator(config, n_worlds=1, frames_per_run=run_frames, runs_per_world=1)
     sim.seed_independent(seed)
-    policy = BrainPolicy(net, settings, config.ruleset, epsilon=epsilon, name=name)
+    brain = settings.filled()
+    eps = brain.epsilon_test_time if epsilon is None else epsilon
+    policy = BrainPolicy(net, config, brain.temporal_window, eps, name=name)
     policy.prepare(CUSTOM, seed, runs=1)
     pstate = policy.pstate
     decide = policy.compiled
@@ -246,10 +248,10 @@ def record_run(
             rec["mph"][j] = 20.0 * cars[0, CC] * cars[0, CA]
             rec["running_score"][j] = 20.0 * fs[0, F_SCORE_SUM] / (t + 1)
             j += 1
-    n_agents = config.other_agents if config.ruleset == "v2" else 0
+    other_agents = config.other_agents  # 0 in v1 (EngineConfig: v1 has no other agents)
     kind = np.full(N_CARS, KIND_TRAFFIC, dtype=np.int64)
     kind[0] = KIND_EGO
-    kind[1 : n_agents + 1] = KIND_AGENT
+    kind[1 : other_agents + 1] = KIND_AGENT
     k = len(decisions)
     return Recording(
         name=name,

@@ -32,6 +32,7 @@ import numba
 import numpy as np
 
 from sim.config import ConfigError, EngineConfig
+from sim.jsnumber import js_number_to_string
 from sim.layout import I_RUNS_DONE
 from sim.policies import BoundPolicy
 from sim.rng import mulberry32_advance
@@ -65,21 +66,6 @@ PROTOCOLS: dict[str, Protocol] = {
         Protocol(CUSTOM, None, 100, 2000, 0, False, "runs × frames as independent worlds, world i ↦ seed + i"),
     )
 }
-
-
-def js_number_to_string(x: float) -> str:
-    """``String(x)`` of a JS number, for the default (lexicographic) ``Array.prototype.sort``."""
-    if math.isnan(x):
-        return "NaN"
-    if math.isinf(x):
-        return "Infinity" if x > 0 else "-Infinity"
-    if x == int(x) and abs(x) < 1e21:
-        return str(int(x))
-    text = repr(float(x))
-    if "e" in text:  # JS prints 1e-7 as "1e-7" and 1.5e-7 as "1.5e-7"; repr agrees but pads exponents
-        mantissa, exp = text.split("e")
-        text = f"{mantissa}e{int(exp):+d}" if int(exp) > 0 else f"{mantissa}e{int(exp)}"
-    return text
 
 
 def site_median(scores: list[float] | np.ndarray) -> float:

@@ -50,7 +50,9 @@ def test_package_copy_is_the_shared_data() -> None:
 
 def test_every_column_is_kept_and_typed(subs: tuple[cd.Submission, ...]) -> None:
     raw = list(csv.DictReader(io.StringIO(_csv_text())))
-    assert [c for c, _f, _k in cd.COLUMNS] == list(raw[0])
+    columns = [c for c, _f, _k in cd.COLUMNS]
+    assert set(raw[0]) <= set(columns) and len(columns) == len(set(columns))
+    assert set(columns) - set(raw[0]) == {"ro", "eps"}  # settings of sim.fields the crowd files never set
     for sub, row in zip(subs, raw, strict=True):
         back = sub.row()
         for column, text in row.items():
@@ -64,8 +66,10 @@ def test_every_column_is_kept_and_typed(subs: tuple[cd.Submission, ...]) -> None
             else:
                 assert value == text, (sub.id, column)
     gsurma = next(s for s in subs if s.id == "dt-gsurma-deep-traffic-v00")
-    assert (gsurma.lanes_side, gsurma.patches_ahead, gsurma.patches_behind, gsurma.other_agents) == (2, 15, 7, 10)
-    assert gsurma.l1_decay is None and gsurma.weights_match_config is True and gsurma.same_config_as is None
+    s = gsurma.settings
+    assert (s.lanes_side, s.patches_ahead, s.patches_behind, s.other_agents, s.ruleset) == (2, 15, 7, 10, "v2")
+    assert s.l1_decay is None and gsurma.weights_match_config is True and gsurma.same_config_as is None
+    assert gsurma.row()["lanesSide"] == 2 and gsurma.namespace()["lanes_side"] == 2
 
 
 def test_blanks_take_the_library_defaults(subs: tuple[cd.Submission, ...]) -> None:
@@ -86,15 +90,15 @@ def test_blanks_take_the_library_defaults(subs: tuple[cd.Submission, ...]) -> No
             ("momentum", 0.9),  # the files give tdtrainer_options, so the Trainer's momentum applies
             ("l2_decay", 0.0),
         ):
-            if getattr(sub, field) is None:
+            if getattr(sub.settings, field) is None:
                 assert getattr(cfg, field) == default, (sub.id, field)
                 checked.add(field)
             else:
-                assert getattr(cfg, field) == pytest.approx(getattr(sub, field)), (sub.id, field)
-        if sub.start_learn_threshold is None:
+                assert getattr(cfg, field) == pytest.approx(getattr(sub.settings, field)), (sub.id, field)
+        if sub.settings.start_learn_threshold is None:
             assert cfg.start_learn_threshold == min(cfg.experience_size // 10, 1000)
         assert cfg.ruleset == sub.engine_version
-        assert cfg.other_agents == (sub.other_agents or 0)
+        assert cfg.other_agents == (sub.settings.other_agents or 0)
     assert checked >= {"learning_rate", "momentum", "l2_decay", "epsilon_min"}
 
 
@@ -107,7 +111,7 @@ def test_configs_and_param_counts(subs: tuple[cd.Submission, ...]) -> None:
         except cd.CrowdDataError as exc:
             failed[sub.id] = str(exc)
             continue
-        if cd.param_count(cfg) != sub.n_params:
+        if cfg.param_count != sub.n_params:
             mismatched.append(sub.id)
     # outside the learner's ranges: an empty replay memory and momentum 5
     assert set(failed) == {"dt-lupuleasa-core-deeptraffic-v32", "dt-peachpower-deeptraffic-v00"}
@@ -131,7 +135,7 @@ def test_the_25_nets_load_and_match_their_rows(subs: tuple[cd.Submission, ...]) 
         cfg = cd.train_config(sub)
         assert net.input_size == cfg.net_inputs == sub.net_inputs_std, nid
         assert settings.engine == sub.engine_version
-        assert net.n_params == cd.param_count(cfg) == sub.n_params, nid
+        assert net.n_params == cfg.param_count == sub.n_params, nid
         config = json.loads((cd.data_dir() / "nets" / f"{nid}.config.json").read_text())
         assert config["reported_score_mph"] == sub.reported_score_mph
 
@@ -153,7 +157,9 @@ def _mutate(column: str, value: str, row: int = 3) -> str:
         ("batch_size", "12.5", "column batch_size: '12.5' is not an integer"),
         ("lanesSide", "", "column lanesSide: is blank"),
         ("has_weights", "yes", "column has_weights: 'yes' is not true/false"),
-        ("engine_version", "v3", "column engine_version: 'v3' is not one of v1, v2"),
+        ("engine_version", "v3", "column engine_version: 'v3' is not allowed; did you mean 'v2'? (use one of v1, v2)"),
+        ("engine_version", "", "column engine_version: is blank"),
+        ("trainer_method", "adam", "column trainer_method: 'adam' is not allowed; did you mean 'adagrad'?"),
         ("score_kind", "bragged", "column score_kind: 'bragged' is not one of"),
         ("version_date", "2017-13-01", "column version_date: '2017-13-01' is not a YYYY-MM-DD date"),
         ("num_hidden_layers", "9", "column num_hidden_layers: 9 ≠"),

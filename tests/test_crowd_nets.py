@@ -111,7 +111,8 @@ def test_protocol_api_paths_agree() -> None:
     net, settings = _net(nid)
     want = _reference()[nid]["results"]["v2_official_otherAgents9"]["scores"][:3]
     config = engine_config(settings, "v2")
-    policy = BrainPolicy(net, settings, "v2")
+    brain = settings.filled()  # the file's temporal window and ε_test, or deepqlearn's defaults
+    policy = BrainPolicy(net, config, brain.temporal_window, brain.epsilon_test_time)
     stream = policy.prepare("v2-official", 1)
     compiled = evaluate(config, policy, "v2-official", runs=3, stream_state=stream)
     assert compiled.scores == want

@@ -65,7 +65,7 @@ def test_replay_trains_crowd_settings_and_a_rerun_runs_nothing(tmp_path: Path) -
         # full training: training frames (30 per iteration) + 5 quick scores of 10 × 2,000 + the official runs
         assert t.user_attrs["frames_simulated"] >= 30 * config.train_iterations + 1_000_000
         assert len(t.intermediate_values) == 5
-        expected = crowd.encode_params(config)
+        expected = crowd.crowd_params(config)
         assert {k: t.params[k] for k in expected} == pytest.approx(expected)
     table = out[out.index("crowd id") :].splitlines()
     assert table[0].split() == ["crowd", "id", "engine", "self-reported", "replayed", "mean", "sd", "seeds"]
@@ -113,7 +113,7 @@ def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: 
     configs = {sub.id: crowd_data.train_config(sub) for sub in (v1, odd)}
     storages = open_storage(str(tmp_path / "j.log"), "r")
     spec = replay_spec(
-        "r", storage="", workers=1, n_trials=2, params=[crowd.encode_params(c) for c in configs.values()]
+        "r", storage="", workers=1, n_trials=2, params=[crowd.crowd_params(c) for c in configs.values()]
     )
     assert spec.study.pruner == "none" and spec.evaluation.final_protocol == "v2-official"  # the space's ruleset
     assert spec.dimensions["neurons"].low == 1 and "linear" in spec.dimensions["activation"].choices

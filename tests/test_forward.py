@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from autotune.convnet.forward import flatten, forward, greedy_actions
-from autotune.convnet.netjson import NetSettings
 from autotune.convnet.random import build_draws, gauss_skip, replay_build
+from autotune.convnet.settings import Settings
 from autotune.convnet.spec import (
     FC,
     LRN,
@@ -273,13 +273,13 @@ class _Obs:
 def test_brain_policy_warmup_and_window(ruleset: str) -> None:
     # tw = 2: warm-up for 2 decisions (v2: action 0, no draw; v1: ⌊5u⌋, one draw), then the input is
     # [x_t, x_{t-1}, e(a_{t-1})·ns, x_{t-2}, e(a_{t-2})·ns] and a greedy step draws rf + ni Gaussians.
-    settings = NetSettings(lanes_side=0, patches_ahead=2, patches_behind=0, temporal_window=2, epsilon_test_time=0.0)
+    settings = Settings(lanes_side=0, patches_ahead=2, patches_behind=0, temporal_window=2, epsilon_test_time=0.0)
     ni = settings.net_inputs
     assert ni == 2 + 2 * (2 + 5)
     w = np.zeros((5, ni))
     w[3, :] = 1.0  # Q_3 = Σ inputs > 0 = Q_others
     net = ConvNet(expand([Input(ni), Regression(5)]), ((w, np.zeros(5)),))
-    pol = BrainPolicy(net, settings, ruleset)
+    pol = BrainPolicy.of_settings(net, settings, ruleset)
     pol.prepare("v2-official" if ruleset == "v2" else "v1-original", 1)
     mr = np.array([99], dtype=np.int64)
     a1 = int(pol(_Obs([0.25, 0.5], mr))[0])
@@ -307,7 +307,7 @@ def test_brain_policy_warmup_and_window(ruleset: str) -> None:
 def test_agents_copy_the_ego_brain_once() -> None:
     # v2: agents return 0 (load-time copies in warm-up) until the ego has made more than tw decisions,
     # then every agent starts from the ego's windows and counters.
-    settings = NetSettings(
+    settings = Settings(
         lanes_side=0, patches_ahead=1, patches_behind=0, temporal_window=1, epsilon_test_time=0.0, other_agents=3
     )
     ni = settings.net_inputs
@@ -315,7 +315,7 @@ def test_agents_copy_the_ego_brain_once() -> None:
     w[4, 1] = 1.0  # Q_4 = x_{t-1}[0]: the previous state seen by this brain
     w[2, 1] = -1.0
     net = ConvNet(expand([Input(ni), Regression(5)]), ((w, np.zeros(5)),))
-    pol = BrainPolicy(net, settings, "v2")
+    pol = BrainPolicy.of_settings(net, settings, "v2")
     pol.prepare("v2-official", 1)
     mr = np.array([5], dtype=np.int64)
     assert pol(_Obs([0.5], mr))[0] == 0  # ego warm-up

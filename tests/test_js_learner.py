@@ -24,7 +24,7 @@ import pytest
 from autotune.learner.brain_policy import evaluate_net
 from autotune.learner.config import preset
 from autotune.learner.js_learner import OriginalStream, draws_between, train_exact
-from autotune.learner.official import evaluate_official, net_settings
+from autotune.learner.official import evaluate_official
 from autotune.learner.training import train
 from sim.config import ConfigError
 from sim.rng import mulberry32_advance
@@ -92,7 +92,7 @@ def test_evaluation_with_and_without_the_engine_load_differ() -> None:
     ref = _reference("default_v1.json", 1)
     config = preset("default_v1", ruleset="v1")
     result = train_exact(config, 1)
-    settings = net_settings(config)
+    settings = config.settings
     without = evaluate_net(result.convnet, settings, "v1-original", seed=101, runs=2, engine_load=False)
     assert without.scores == ref["eval"]["scores_run_order"][:2]
     with_load = evaluate_net(result.convnet, settings, "v1-original", seed=101, runs=2)
@@ -198,7 +198,7 @@ def test_evaluate_cli_reproduces_the_reference_evaluation(tmp_path, capsys) -> N
 
     config = preset("default_v1", ruleset="v1")
     result = train_exact(config, 1)
-    write_net(tmp_path / "net.json", result.convnet, net_settings(config))
+    write_net(tmp_path / "net.json", result.convnet, config.settings)
     argv = ["--net", str(tmp_path / "net.json"), "--protocol", "v1-original", "--seed", "101"]
     assert main([*argv, "--no-engine-load", "--gauss-cache", str(result.final_gauss_cache), "--json"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -333,7 +333,7 @@ def test_shared_decision_rules_make_the_replicas_decisions(ruleset: str, tw: int
 
     # compiled rules: the exact brain policy (ring buffers) — its ε is ε_test, so only where the schedule is flat
     if (burnin, total) == (0, 1):
-        policy = BrainPolicy(net, net_settings(config), ruleset)
+        policy = BrainPolicy(net, config.engine_config, config.temporal_window, config.epsilon_test_time)
         policy.reset(1, np.array([cache0], dtype=np.int64))
         mr = np.array([mr0], dtype=np.int64)
         for t, (x, (want, want_input, _eps, want_mr)) in enumerate(zip(states, replica, strict=True)):

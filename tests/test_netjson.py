@@ -12,7 +12,6 @@ import pytest
 from autotune import cli
 from autotune.convnet.netjson import (
     NetFormatError,
-    NetSettings,
     dumps_net,
     export_netjs,
     js_num,
@@ -24,6 +23,7 @@ from autotune.convnet.netjson import (
     validate,
     write_net,
 )
+from autotune.convnet.settings import Settings
 from autotune.convnet.spec import FC, SVM, Input, Regression, expand, init_convnet, parse_hidden
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -97,12 +97,11 @@ def test_null_weight_loads_as_zero_and_roundtrip(tmp_path: Path) -> None:
     text = dumps_net(net)
     assert '"0":0,"1":2,"2":-0.000035' in text and '"2":1e-7' in text
     assert loads_net(text).same_as(net)
-    settings = NetSettings(lanes_side=1, patches_ahead=1, patches_behind=0, temporal_window=0, other_agents=2)
+    settings = Settings(lanes_side=1, patches_ahead=1, patches_behind=0, temporal_window=0, other_agents=2)
     write_net(tmp_path / "n.json", net, settings)
     net2, settings2 = load(tmp_path / "n.json")
-    assert net2.same_as(net) and settings2 == NetSettings(
-        lanes_side=1, patches_ahead=1, patches_behind=0, temporal_window=0, other_agents=2, epsilon_test_time=0.01
-    )
+    assert net2.same_as(net) and settings2 == settings  # unset stays unset
+    assert settings2.filled().epsilon_test_time == 0.01 and settings2.engine == "v2"
 
 
 def test_nan_parameters_export_as_null() -> None:
@@ -180,7 +179,7 @@ def test_export_netjs_block() -> None:
 def test_svm_and_maxout_defs_in_netjs() -> None:
     layers = expand([Input(4), SVM(3), FC(6, "maxout"), Regression(5)])
     net = init_convnet(layers)
-    settings = NetSettings(lanes_side=0, patches_ahead=4, patches_behind=0, temporal_window=0)
+    settings = Settings(lanes_side=0, patches_ahead=4, patches_behind=0, temporal_window=0)
     js = export_netjs(net, settings, with_weights=False)
     assert "layer_defs.push({type: 'svm', num_classes: 3});" in js
     assert "layer_defs.push({type: 'fc', num_neurons: 6, activation: 'maxout'});" in js
@@ -240,12 +239,18 @@ def test_structural_errors_name_the_field() -> None:
 def test_sizes_must_fit_the_settings() -> None:
     net = parse_net(_small())
     with pytest.raises(NetFormatError, match=r"^layers\[0\]\.out_depth: the net takes 3 inputs .* = 7 "):
-        validate(net, NetSettings(lanes_side=0, patches_ahead=1, patches_behind=0, temporal_window=1))
-    with pytest.raises(NetFormatError, match="config.lanesSide: must be a non-negative integer"):
+        validate(net, Settings(lanes_side=0, patches_ahead=1, patches_behind=0, temporal_window=1))
+    with pytest.raises(NetFormatError, match=r"^config.lanesSide: must be an integer in 0–50, got 1.5"):
         settings_from_config({"lanesSide": 1.5, "patchesAhead": 1, "patchesBehind": 0})
+    with pytest.raises(NetFormatError, match=r"^config.temporal_window: 101 is out of range; allowed 0–100"):
+        settings_from_config({"lanesSide": 1, "patchesAhead": 1, "patchesBehind": 0, "temporal_window": 101})
+    with pytest.raises(NetFormatError, match=r"^config.engine_version: 'v3' is not allowed"):
+        settings_from_config({"lanesSide": 1, "patchesAhead": 1, "patchesBehind": 0, "engine_version": "v3"})
     with pytest.raises(NetFormatError, match="config.patchesAhead: missing"):
         settings_from_config({"lanesSide": 1, "patchesBehind": 0})
-    assert settings_from_config({"lanesSide": 1, "patchesAhead": 1, "patchesBehind": 0}).temporal_window == 1
+    loaded = settings_from_config({"lanesSide": 1, "patchesAhead": 1, "patchesBehind": 0, "momentum": 5})
+    assert loaded.temporal_window is None and loaded.filled().temporal_window == 1  # deepqlearn's default
+    assert loaded.momentum == 5.0  # out of the learner's range, but a net file may say it: evaluation ignores it
 
 
 def test_missing_files(tmp_path: Path) -> None:

@@ -11,7 +11,8 @@ from PIL import Image
 
 import autotune
 from autotune.cli import main
-from autotune.convnet.netjson import NetSettings, load
+from autotune.convnet.netjson import load
+from autotune.convnet.settings import Settings
 from autotune.convnet.spec import ConvNet, init_convnet
 from autotune.learner.brain_policy import evaluate_net
 from dashboards.replay import (
@@ -148,7 +149,7 @@ def test_replay_command_bad_input_is_one_line(tmp_path: Path, capsys: pytest.Cap
 
 
 # -- a study's trial ---------------------------------------------------------------------------------
-def _study_with_two_nets(storage: str) -> list[tuple[ConvNet, NetSettings]]:
+def _study_with_two_nets(storage: str) -> list[tuple[ConvNet, Settings]]:
     """Study 'demo' at ``storage``: trials 0 and 1 COMPLETE (1 the best), each with a net.json artifact."""
     import optuna
     from optuna.distributions import FloatDistribution
@@ -177,7 +178,7 @@ def _study_with_two_nets(storage: str) -> list[tuple[ConvNet, NetSettings]]:
                 user_attrs={"source": "autotune", "config": config.to_mapping(), "artifact_net_json": artifact},
             )
         )
-        nets.append((net, autotune.net_settings(config)))
+        nets.append((net, config.settings))
     return nets
 
 

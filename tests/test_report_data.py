@@ -54,7 +54,7 @@ def contract_study(
     trials = []
     for k in range(n):
         cfg = contract_config(rng, "v1" if k % 5 == 4 else "v2")
-        params = crowd.encode_params(cfg)
+        params = crowd.crowd_params(cfg)
         state = (states or {}).get(k, COMPLETE)
         value = 50 + 0.3 * cfg.patches_ahead + 10 * cfg.gamma + rng.gauss(0, 1) if state == COMPLETE else None
         attrs = {
@@ -65,7 +65,7 @@ def contract_study(
             "curve": [{"step": 0, "frames": 1000, "quick_score": 40.0}],
             "input_size": cfg.net_inputs,
             "num_states": cfg.num_states,
-            "param_count": cd.param_count(cfg),
+            "param_count": cfg.param_count,
             "frames_simulated": cfg.total_frames + 100_000,
             "official_protocol": "v2-official" if cfg.ruleset == "v2" else "v1-original",
             "diverged": False,
@@ -285,7 +285,7 @@ def _csv_units() -> list[dict]:
         unit = units.setdefault(
             sub.config_hash,
             {
-                "param_count": cd.param_count(cfg), "temporal_window": cfg.temporal_window,
+                "param_count": cfg.param_count, "temporal_window": cfg.temporal_window,
                 "patches_ahead": cfg.patches_ahead, "gamma": cfg.gamma, "engine": sub.engine_version,
                 "agents": sub.other_agents or 0, "repo": sub.repo, "order": order, "scores": [],
             },
@@ -414,7 +414,7 @@ def test_replay_and_own_net_comparisons(crowd_points: extract.StudyData) -> None
     assert enqueue_replay(replay, subs, seeds=2)[:2] == (0, 4)  # idempotent
     for trial, value in zip(replay.get_trials(), (70.0, 72.0, 60.0, 61.0), strict=True):
         assert trial.state == optuna.trial.TrialState.WAITING
-        fixed = crowd.encode_params(TrainConfig.from_mapping(trial.user_attrs["config"]))
+        fixed = crowd.crowd_params(TrainConfig.from_mapping(trial.user_attrs["config"]))
         assert trial.system_attrs["fixed_params"] == fixed
         t = replay.ask()
         assert t.user_attrs["crowd_id"] == trial.user_attrs["crowd_id"]

@@ -62,7 +62,7 @@ def make_study(storages: Storages, name: str) -> optuna.Study:
         }
         if state == TrialState.COMPLETE:
             net = init_convnet(config.expanded_layers, seed=i)
-            settings = autotune.net_settings(config)
+            settings = config.settings
             files = {"net.json": autotune.dumps_net(net), "net.js": autotune.export_netjs(net, settings)}
             for fname, text in files.items():
                 path = storages.artifact_dir.parent / f"upload-{i}-{fname}"
@@ -140,12 +140,12 @@ def test_best_json_and_export(journal_study, capsys, tmp_path):
     config = trial_config(0.002)
     net = init_convnet(config.expanded_layers, seed=1)
     assert (out_dir / "net.json").read_text() == autotune.dumps_net(net)  # the trained weights, unchanged
-    assert (out_dir / "net.js").read_text() == autotune.export_netjs(net, autotune.net_settings(config))
+    assert (out_dir / "net.js").read_text() == autotune.export_netjs(net, config.settings)
     cfg = json.loads((out_dir / "net.config.json").read_text())
     assert cfg["lanesSide"] == 1 and cfg["otherAgents"] == 3 and cfg["learning_rate"] == 0.002
     assert cfg["hidden_layers"] == "fc:6:tanh|fc:4:relu" and cfg["engine_version"] == "v2"
     loaded_net, settings = autotune.load_net_and_settings(out_dir / "net.json")  # what `autotune evaluate` reads
-    assert settings == autotune.net_settings(config)
+    assert settings == config.settings
     assert autotune.dumps_net(loaded_net) == autotune.dumps_net(net)
 
     code, out, err = run_cli(capsys, "best", study, "--storage", storage)

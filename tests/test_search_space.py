@@ -12,17 +12,11 @@ import pytest
 from autotune import ConfigError, TrainConfig
 from autotune.search import space
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
+from sim import fields
 from tests.conftest import CROWD, ROOT
 
 CONFIGS = ROOT / "study_configs"
 optuna.logging.set_verbosity(optuna.logging.WARNING)
-
-# the crowd CSV's config columns (TrainConfig.from_mapping accepts their camelCase names)
-CSV_CONFIG = (
-    "lanesSide", "patchesAhead", "patchesBehind", "trainIterations", "otherAgents", "temporal_window",
-    "hidden_layers", "learning_rate", "momentum", "batch_size", "l2_decay", "l1_decay", "gamma", "experience_size",
-    "start_learn_threshold", "learning_steps_total", "learning_steps_burnin", "epsilon_min", "epsilon_test_time",
-)  # fmt: skip
 
 
 def _number(text: str) -> int | float:
@@ -39,10 +33,12 @@ def _crowd_rows() -> list[dict[str, str]]:
 
 
 def _crowd_config(row: dict[str, str]) -> TrainConfig:
-    values: dict[str, Any] = {"ruleset": row["engine_version"]}
-    for key in CSV_CONFIG:
-        if key == "hidden_layers" or row[key] != "":  # an empty hidden_layers is a linear net
-            values[key] = row[key] if key == "hidden_layers" else _number(row[key])
+    """A CSV row's settings as a flat config (from_mapping reads the columns' names: sim.fields' aliases)."""
+    values: dict[str, Any] = {"hidden_layers": row["hidden_layers"]}  # an empty hidden_layers is a linear net
+    for key, text in row.items():
+        f = fields.field(key) if fields.name_of(key) else None
+        if f is not None and text != "":
+            values[key] = text if f.kind is str else _number(text)
     return TrainConfig.from_mapping(values)
 
 
@@ -165,9 +161,16 @@ def test_encode_crowd_names() -> None:
     assert space.outside(spec, params) == []
     at = space.to_config(spec, params, budget=50_000)  # the ladder at the crowd's own length: the crowd's settings
     assert at == gsurma.replace(start_learn_threshold=min(gsurma.start_learn_threshold, 12_500))
-    svm = gsurma.replace(layers="fc:10:relu|svm:10")
-    with pytest.raises(SpecError, match="hidden layer 1 'svm:10'"):
-        space.encode(spec, svm)
+    svm = space.encode(spec, gsurma.replace(layers="fc:10:relu|svm:10|lrn|fc:3:softmax"))
+    assert (svm["n_layers"], svm["neurons_1"], svm["activation_1"], svm["activation_2"]) == (3, 10, "svm", "linear")
+    choices = "['relu', 'tanh', 'sigmoid', 'maxout']"
+    assert space.outside(spec, svm) == [
+        f"activation_1: 'svm' not in {choices}",
+        f"activation_2: 'linear' not in {choices}",
+    ]
+    v1 = space.encode(spec, gsurma.replace(ruleset="v1", otherAgents=0))
+    assert "other_agents" not in v1  # v1 has no other agents: no parameter
+    assert space.active(svm)["n_layers"] == 3 and "neurons_3" in svm and "neurons_3" not in space.active(svm)
     wide = space.encode(spec, gsurma.replace(lanesSide=50, layers="fc:10"))
     assert wide["activation_0"] == "linear"
     assert space.outside(spec, wide) == ["lanes_side: 50 outside [0, 10]", "activation_0: 'linear' not in "
@@ -235,8 +238,8 @@ def test_param_count_matches_the_crowd() -> None:
         except ConfigError:
             continue  # experience_size 0, momentum 5: outside what TrainConfig accepts
         checked += 1
-        if space.param_count(config) != int(row["n_params"]):
-            mismatched.append(f"{row['id']} {row['hidden_layers']}: {space.param_count(config)} vs {row['n_params']}")
+        if config.param_count != int(row["n_params"]):
+            mismatched.append(f"{row['id']} {row['hidden_layers']}: {config.param_count} vs {row['n_params']}")
     assert checked >= 0.95 * len(rows), f"only {checked}/{len(rows)} crowd rows build a TrainConfig"
     # m-quadra's svm:25 row: the CSV omits the final regression's fc (5·5 + 5 = 30); convnetjs builds it
     assert len(mismatched) <= 1, f"{len(mismatched)}/{checked} crowd rows disagree on n_params: {mismatched}"
@@ -244,10 +247,10 @@ def test_param_count_matches_the_crowd() -> None:
 
 def test_param_count_small() -> None:
     # 19 inputs (default template: L0 P1 B0 tw3) → fc(1) → regression(5): 19·1+1 + 1·5+5
-    assert space.param_count(TrainConfig()) == 30
+    assert TrainConfig().param_count == 30
     # maxout halves the width the next layer sees: 10 → 5 → fc 5·4+4 → 4·5+5
     cfg = TrainConfig(lanes_side=0, patches_ahead=2, temporal_window=0, layers="fc:10:maxout|fc:4:relu")
-    assert space.param_count(cfg) == (2 * 10 + 10) + (5 * 4 + 4) + (4 * 5 + 5)
+    assert cfg.param_count == (2 * 10 + 10) + (5 * 4 + 4) + (4 * 5 + 5)
 
 
 def test_default_space_spans_the_crowd() -> None:

@@ -8,12 +8,20 @@ from pathlib import Path
 import pytest
 
 from autotune.search import space
-from autotune.search.spec import PARAMS, SpecError, StudySpec, load_spec, parse_spec
+from autotune.search.spec import FRACTIONS, PARAMS, SpecError, StudySpec, load_spec, parse_spec
 from sim.config import ConfigError
 from tests.conftest import ROOT
 
 CONFIGS = ROOT / "study_configs"
 SHIPPED = ("smoke.toml", "quick.toml", "paper.toml")
+
+# the paper's Table 1 (the hyperparameters the crowd tuned; gamma as one_minus_gamma) and the layout
+TABLE1 = (
+    "lanes_side", "patches_ahead", "patches_behind", "other_agents", "train_iterations", "temporal_window",
+    "experience_size", "start_learn_threshold", "one_minus_gamma", "learning_steps_total", "learning_steps_burnin",
+    "epsilon_min", "epsilon_test_time", "learning_rate", "momentum", "batch_size", "l2_decay",
+    "n_layers", "neurons", "activation",
+)  # fmt: skip
 
 MINIMAL = """
 [study]
@@ -54,12 +62,13 @@ def test_paper_toml_is_the_paper_space() -> None:
                         "space": space.PAPER_SPACE})  # fmt: skip
     assert spec.space == paper.space
     assert spec.fixed == ()
-    # every Table-1 setting but the ladder's (training length, ε's schedule in iterations) and l1 (no effect on fc)
-    table1 = set(PARAMS) - {"l1_decay", "train_iterations", "learning_steps_total", "learning_steps_burnin"}
-    assert {d.name for d in spec.space} == table1
+    # every Table-1 setting but the ladder's (training length, ε's schedule as fractions of it), and the trainer method
+    ladder = {"train_iterations", "learning_steps_total", "learning_steps_burnin"}
+    assert {d.name for d in spec.space} == (set(TABLE1) - ladder) | set(FRACTIONS) | {"method"}
+    assert set(TABLE1) <= set(PARAMS)
     assert spec.ladder == (10_000, 30_000, 90_000, 270_000) and spec.study.pruner == "sha"
     classic = parse_spec({"study": {"name": "d", "n_trials": 1}, "space": space.DEFAULT_SPACE})
-    assert not classic.ladder  # the crowd study's space: the same settings in their absolute form
+    assert not classic.ladder and {d.name for d in classic.space} == set(TABLE1)  # the crowd study's space
 
 
 def test_defaults(tmp_path: Path) -> None:
@@ -124,6 +133,12 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
     ("fixed start >= experience", "[fixed]\nexperience_size = 100\nstart_learn_threshold = 100\n",
      ("[fixed] start_learn_threshold:", "experience_size 100")),
     ("fixed ruleset", "[fixed]\nruleset = 'v1'\n", ("[fixed] ruleset:", "[study] ruleset")),
+    ("fixed ruleset by its alias", "[fixed]\nengine_version = 'v1'\n", ("[fixed] engine_version:", "[study] ruleset")),
+    ("unknown ruleset", MINIMAL.replace("n_trials = 3", "n_trials = 3\nruleset = 'v3'"),
+     ("[study] ruleset:", "'v3' is not allowed", "use one of v1, v2")),
+    ("unknown trainer method", "[space]\nmethod = { choices = ['sgd', 'adagrd'] }\n",
+     ("[space] method:", "choice 'adagrd' is not allowed", "did you mean 'adagrad'?")),
+    ("fixed unknown trainer method", "[fixed]\nmethod = 'adam'\n", ("[fixed] method:", "did you mean 'adagrad'?")),
     ("v1 with agents", MINIMAL.replace("n_trials = 3", "n_trials = 3\nruleset = 'v1'") + "[fixed]\notherAgents = 3\n",
      ("[fixed] other_agents:", "v1")),
     ("v1 searching agents", MINIMAL.replace("n_trials = 3", "n_trials = 3\nruleset = 'v1'")
@@ -208,3 +223,17 @@ def test_spec_is_frozen_and_hashable(tmp_path: Path) -> None:
         spec.study = spec.study  # type: ignore[misc]
     assert hash(spec) == hash(load_spec(CONFIGS / "quick.toml"))
     assert isinstance(spec, StudySpec)
+
+
+def test_trainer_method_is_searchable() -> None:
+    """The table's categorical settings are [space] parameters like any other (choices from sim.fields)."""
+    spec = parse_spec(
+        {
+            "study": {"name": "m", "n_trials": 1},
+            "space": {"method": {"choices": ["sgd", "adadelta"]}, "ro": {"low": 0.5, "high": 0.99}},
+        }
+    )
+    config = space.to_config(spec, {"method": "adadelta", "ro": 0.9})
+    assert (config.method, config.ro) == ("adadelta", 0.9)
+    assert space.encode(spec, config) == {"method": "adadelta", "ro": 0.9}
+    assert config.to_deepqlearn()["opt"]["tdtrainer_options"]["method"] == "adadelta"

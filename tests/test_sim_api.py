@@ -92,6 +92,9 @@ def test_single_world_fast_path_matches_batch():
 def test_run_scores_are_truncated_and_sorted_like_js():
     assert js_number_to_string(70.0) == "70" and js_number_to_string(7.8) == "7.8"
     assert js_number_to_string(float("nan")) == "NaN"
+    # one String(x) for the median's sort and the net JSON (autotune.convnet.netjson.js_num): JS's layout
+    assert js_number_to_string(5e-5) == "0.00005" and js_number_to_string(1e-7) == "1e-7"
+    assert site_median([5e-5, 1e-3]) == 1e-3  # "0.00005" < "0.001" (a Python repr would sort "5e-05" last)
     # "7.8" sorts after "10.5" as a string: the originals' median breaks below 10 mph
     assert site_median([7.8, 10.5, 9.9]) == 7.8
     assert site_median([71.2, 70.1, 72.3, 69.0]) == 71.2

@@ -33,7 +33,7 @@ from typing import Any
 
 from autotune.cliutil import fail
 from autotune.learner.config import PRESETS, ConfigError, TrainConfig, load_toml, preset
-from autotune.learner.official import evaluate_official, net_settings, official_protocol
+from autotune.learner.official import evaluate_official, official_protocol
 
 
 def _parse_value(text: str) -> Any:
@@ -162,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     )
     write_curve(out, result)
     convnet = result.convnet()
-    settings = net_settings(config)
+    settings = config.settings
     write_net(out / "net.json", convnet, settings)
     (out / "net.js").write_text(export_netjs(convnet, settings))
     torch.save(

@@ -1,6 +1,7 @@
-"""convnetjs Net JSON import/export and DeepTraffic net settings (``*.json`` + ``*.config.json``).
+"""convnetjs Net JSON import/export and a net's DeepTraffic settings (``*.json`` + ``*.config.json``).
 
-* ``load(net_path, config_path)`` → ``(ConvNet, NetSettings)``, validated against each other:
+* ``load(net_path, config_path)`` → ``(ConvNet, Settings)``, validated against each other (the
+  settings record and its one reader/writer are ``autotune.convnet.settings``; unset = None):
   the input layer must have ``net_inputs = num_inputs·tw + 5·tw + num_inputs`` values with
   ``num_inputs = (2L+1)(P+B)``, the output 5; every layer must fit the previous one.
 * ``parse_net(obj)`` reads the object passed to ``brain.value_net.fromJSON`` (``Net.toJSON()``
@@ -12,8 +13,9 @@
   convnetjs file byte for byte and import → export → import is bit-exact. Non-finite parameters
   are written as ``null`` (what ``toJSON`` does with NaN; they load back as 0).
 * ``export_netjs(net, settings)`` writes a net.js for the DeepTraffic page: the settings as plain
-  JS assignments, ``layer_defs``, the ``opt`` object literal, the brain, ``learn`` and (optionally)
-  the appended ``brain.value_net.fromJSON(…)``.
+  JS assignments, ``layer_defs``, the ``opt`` object literal (``settings.write_nested``, the form
+  ``TrainConfig.to_deepqlearn`` writes too), the brain, ``learn`` and (optionally) the appended
+  ``brain.value_net.fromJSON(…)``. Numbers are written as JavaScript does (``sim.jsnumber``).
 
 Every problem raises ``NetFormatError`` with a one-line message that starts with the field,
 e.g. ``layers[3].filters[2].w[17]: NaN weight; …``.
@@ -21,8 +23,6 @@ e.g. ``layers[3].filters[2].w[17]: NaN weight; …``.
 
 from __future__ import annotations
 
-import dataclasses
-import decimal
 import json
 import math
 from pathlib import Path
@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from autotune.convnet.settings import Settings, read, write_flat, write_nested
 from autotune.convnet.spec import (
     FC,
     LRN,
@@ -52,7 +53,8 @@ from autotune.convnet.spec import (
     net_input_size,
 )
 from sim import fields
-from sim.config import input_size
+from sim.config import ConfigError, FieldValueError, check, input_size
+from sim.jsnumber import js_number_to_string
 
 SUPPORTED_TYPES = ("input", "fc", "relu", "tanh", "sigmoid", "maxout", "dropout", "svm", "softmax", "regression", "lrn")
 
@@ -67,161 +69,48 @@ class NetFormatError(ValueError):
 
 
 def js_num(x: float) -> str:
-    """``String(x)`` of a JS number; non-finite values give ``null`` (JSON.stringify's output)."""
-    x = float(x)
-    if not math.isfinite(x):
-        return "null"
-    if x == 0.0:
-        return "0"
-    r = repr(x)
-    if "e" not in r:  # Python prints plain decimals for 1e-4 ≤ |x| < 1e16, where JS does too
-        return r[:-2] if r.endswith(".0") else r
-    sign, digits, exponent = decimal.Decimal(r).as_tuple()
-    ds = "".join(map(str, digits)).rstrip("0")
-    exp = int(exponent) + len(digits) - len(ds)
-    k = len(ds)
-    n = exp + k  # x = 0.ds × 10^n
-    neg = "-" if sign else ""
-    if k <= n <= 21:
-        body = ds + "0" * (n - k)
-    elif 0 < n <= 21:
-        body = ds[:n] + "." + ds[n:]
-    elif -6 < n <= 0:
-        body = "0." + "0" * (-n) + ds
-    else:
-        e = n - 1
-        mant = ds if k == 1 else ds[0] + "." + ds[1:]
-        body = f"{mant}e{'+' if e >= 0 else '-'}{abs(e)}"
-    return neg + body
+    """A number as ``JSON.stringify`` writes it: ``String(x)`` (``sim.jsnumber``), non-finite values as ``null``."""
+    return js_number_to_string(x) if math.isfinite(x) else "null"
 
 
 # --------------------------------------------------------------------------------------------
 # settings
 # --------------------------------------------------------------------------------------------
 
-# deepqlearn defaults when a key is absent (engine_spec.md §10.1)
-DEEPQLEARN_DEFAULTS = {f.name: f.deepqlearn_default for f in fields.group("opt") if f.deepqlearn_default is not None}
+# the settings a net is evaluated with: they must lie in the table's ranges (the rest only needs its type)
+EVALUATION_FIELDS = ("lanes_side", "patches_ahead", "patches_behind", "temporal_window", "epsilon_test_time")
 
 
-@dataclasses.dataclass(frozen=True)
-class NetSettings:
-    """DeepTraffic settings of a net.js (globals + ``opt``); ``None`` = not set (library default applies)."""
+def settings_from_config(cfg: dict[str, Any], where: str = "config") -> Settings:
+    """The ``Settings`` of a ``*.config.json`` / crowd CSV row (camelCase or snake_case keys, ``settings.read``).
 
-    lanes_side: int
-    patches_ahead: int
-    patches_behind: int
-    temporal_window: int = 1
-    other_agents: int | None = None  # None: the file does not assign otherAgents → v1 engine
-    epsilon_test_time: float = 0.01
-    train_iterations: int | None = None
-    experience_size: int | None = None
-    start_learn_threshold: int | None = None
-    gamma: float | None = None
-    learning_steps_total: int | None = None
-    learning_steps_burnin: int | None = None
-    epsilon_min: float | None = None
-    learning_rate: float | None = None
-    momentum: float | None = None
-    batch_size: int | None = None
-    l2_decay: float | None = None
-    l1_decay: float | None = None
-    trainer_method: str | None = None
-    engine_version: str | None = None  # 'v1'/'v2' as recorded; default: v2 iff other_agents is set
-
-    @property
-    def num_inputs(self) -> int:
-        """``(2L+1)(P+B)``: one car's input vector."""
-        return input_size(self.lanes_side, self.patches_ahead, self.patches_behind)
-
-    @property
-    def net_inputs(self) -> int:
-        """``num_inputs·tw + 5·tw + num_inputs``: the network's input size."""
-        return net_input_size(self.num_inputs, self.temporal_window)
-
-    @property
-    def engine(self) -> str:
-        """The engine the net was written for."""
-        if self.engine_version in ("v1", "v2"):
-            return self.engine_version
-        return "v2" if self.other_agents is not None else "v1"
-
-
-# config key (camelCase as in config.json / net.js, or snake_case) → (field, kind)
-_CONFIG_FIELDS: dict[str, tuple[str, str]] = {
-    **{f.alias or f.name: (f.name, "int0" if f.kind is int else "float") for f in fields.FIELDS},
-    "trainer_method": ("trainer_method", "str"),
-    "method": ("trainer_method", "str"),
-    "engine_version": ("engine_version", "str"),
-}
-for _camel, (_field, _kind) in list(_CONFIG_FIELDS.items()):
-    _CONFIG_FIELDS.setdefault(_field, (_field, _kind))
-_REQUIRED = ("lanes_side", "patches_ahead", "patches_behind")
-
-
-def _check_value(where: str, value: Any, kind: str) -> Any:
-    if kind == "str":
-        if not isinstance(value, str):
-            raise NetFormatError(f"{where}: must be a string, got {value!r}")
-        return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise NetFormatError(f"{where}: must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise NetFormatError(f"{where}: must be finite, got {value!r}")
-    if kind == "int0":
-        if value != int(value) or value < 0:
-            raise NetFormatError(f"{where}: must be a non-negative integer, got {value!r}")
-        return int(value)
-    return float(value)
-
-
-def settings_from_config(cfg: dict[str, Any], where: str = "config") -> NetSettings:
-    """Build ``NetSettings`` from a ``*.config.json`` / crowd CSV row (camelCase or snake_case keys).
-
-    Unknown keys (provenance metadata) are ignored; ``null`` means "not set" (library default).
+    Other keys (provenance metadata) are ignored; ``null`` or ``""`` means not set (a library default
+    applies). The input window must be set, and what evaluation uses must lie in its range.
     """
     if not isinstance(cfg, dict):
         raise NetFormatError(f"{where}: must be a JSON object, got {type(cfg).__name__}")
-    values: dict[str, Any] = {}
-    for key, value in cfg.items():
-        if key not in _CONFIG_FIELDS or value is None or value == "":
-            continue
-        field, kind = _CONFIG_FIELDS[key]
-        if kind == "str" and field == "trainer_method" and value.startswith("default"):
-            continue
-        values[field] = _check_value(f"{where}.{key}", value, kind)
-    for name in _REQUIRED:
-        if name not in values:
-            camel = fields.field(name).alias
-            raise NetFormatError(f"{where}.{camel}: missing (required to size the input)")
+    try:
+        values, _others = read({k: v for k, v in cfg.items() if v != ""}, where=f"{where}.")
+        result = Settings(**values)
+        for name in EVALUATION_FIELDS:
+            if values.get(name) is not None:
+                check(fields.field(name), values[name])
+    except FieldValueError as exc:
+        key = exc.name if exc.name.startswith(f"{where}.") else f"{where}.{fields.field(exc.name).alias or exc.name}"
+        raise NetFormatError(f"{key}: {exc.problem}") from None
+    except ConfigError as exc:
+        raise NetFormatError(str(exc)) from None
+    for f in fields.FIELDS:
+        if f.required and values.get(f.name) is None:
+            raise NetFormatError(f"{where}.{f.alias or f.name}: missing (required to size the input)")
     if values["patches_ahead"] + values["patches_behind"] < 1:
         raise NetFormatError(f"{where}.patchesAhead: patchesAhead + patchesBehind must be ≥ 1")
-    if values.get("engine_version") not in (None, "v1", "v2"):
-        raise NetFormatError(f"{where}.engine_version: must be 'v1' or 'v2', got {values['engine_version']!r}")
-    if "epsilon_test_time" in values and not 0.0 <= values["epsilon_test_time"] <= 1.0:
-        raise NetFormatError(f"{where}.epsilon_test_time: must be in [0, 1], got {values['epsilon_test_time']!r}")
-    values.setdefault("temporal_window", DEEPQLEARN_DEFAULTS["temporal_window"])
-    values.setdefault("epsilon_test_time", DEEPQLEARN_DEFAULTS["epsilon_test_time"])
-    return NetSettings(**values)
+    return result
 
 
-def settings_to_config(settings: NetSettings) -> dict[str, Any]:
-    """``NetSettings`` → config.json-style dict (camelCase globals, snake_case opt keys; unset keys omitted)."""
-    out: dict[str, Any] = {
-        "lanesSide": settings.lanes_side,
-        "patchesAhead": settings.patches_ahead,
-        "patchesBehind": settings.patches_behind,
-    }
-    if settings.train_iterations is not None:
-        out["trainIterations"] = settings.train_iterations
-    if settings.other_agents is not None:
-        out["otherAgents"] = settings.other_agents
-    for f in dataclasses.fields(NetSettings):
-        if f.name in ("lanes_side", "patches_ahead", "patches_behind", "train_iterations", "other_agents"):
-            continue
-        v = getattr(settings, f.name)
-        if v is not None:
-            out[f.name] = v
-    return out
+def settings_to_config(settings: Settings) -> dict[str, Any]:
+    """``Settings`` → config.json-style dict (``settings.write_flat``: flat file names, unset keys omitted)."""
+    return write_flat(settings)
 
 
 # --------------------------------------------------------------------------------------------
@@ -445,7 +334,7 @@ def load_net(path: str | Path) -> ConvNet:
     return loads_net(_read_text(path, "--net"), where=str(path))
 
 
-def load_config(path: str | Path) -> NetSettings:
+def load_config(path: str | Path) -> Settings:
     """Read a ``*.config.json`` (DeepTraffic settings)."""
     text = _read_text(path, "--config")
     try:
@@ -462,14 +351,21 @@ def default_config_path(net_path: str | Path) -> Path:
     return p.with_name(name + ".config.json")
 
 
-def validate(net: ConvNet, settings: NetSettings) -> None:
-    """Raise ``NetFormatError`` unless the net's input/output sizes fit the settings."""
-    tw = settings.temporal_window
-    if net.input_size != settings.net_inputs:
+def validate(net: ConvNet, settings: Settings) -> None:
+    """Raise ``NetFormatError`` unless the net's input/output sizes fit the settings (unset tw: deepqlearn's 1)."""
+    full = settings.filled()
+    check_sizes(net, full.lanes_side, full.patches_ahead, full.patches_behind, full.temporal_window)
+
+
+def check_sizes(net: ConvNet, lanes_side: int, patches_ahead: int, patches_behind: int, temporal_window: int) -> None:
+    """Raise ``NetFormatError`` unless ``net`` takes the input this window and temporal window give, and 5 outputs."""
+    num_inputs = input_size(lanes_side, patches_ahead, patches_behind)
+    net_inputs = net_input_size(num_inputs, temporal_window)
+    if net.input_size != net_inputs:
         raise NetFormatError(
             f"layers[0].out_depth: the net takes {net.input_size} inputs but the settings give net_inputs = "
-            f"num_inputs·tw + 5·tw + num_inputs = {settings.net_inputs} (num_inputs = (2·{settings.lanes_side}+1)·"
-            f"({settings.patches_ahead}+{settings.patches_behind}) = {settings.num_inputs}, temporal_window = {tw})"
+            f"num_inputs·tw + 5·tw + num_inputs = {net_inputs} (num_inputs = (2·{lanes_side}+1)·"
+            f"({patches_ahead}+{patches_behind}) = {num_inputs}, temporal_window = {temporal_window})"
         )
     n_out = net.output_size
     if n_out != NUM_ACTIONS:
@@ -479,7 +375,7 @@ def validate(net: ConvNet, settings: NetSettings) -> None:
         )
 
 
-def load(net_path: str | Path, config_path: str | Path | None = None) -> tuple[ConvNet, NetSettings]:
+def load(net_path: str | Path, config_path: str | Path | None = None) -> tuple[ConvNet, Settings]:
     """Read and cross-validate a net JSON and its config (default: ``<net>.config.json`` beside it)."""
     cfg_path = default_config_path(net_path) if config_path is None else config_path
     net = load_net(net_path)
@@ -544,7 +440,7 @@ def net_to_json(net: ConvNet) -> dict[str, Any]:
     return json.loads(dumps_net(net))
 
 
-def write_net(path: str | Path, net: ConvNet, settings: NetSettings | None = None) -> None:
+def write_net(path: str | Path, net: ConvNet, settings: Settings | None = None) -> None:
     """Write ``net`` as convnetjs JSON, and ``settings`` beside it as ``<name>.config.json`` when given."""
     p = Path(path)
     p.write_text(dumps_net(net), encoding="utf-8")
@@ -602,41 +498,27 @@ def layer_defs_js(net: ConvNet) -> list[str]:
     return lines
 
 
-def settings_js(settings: NetSettings) -> str:
-    """The settings as net.js globals (plain assignments, as the game expects)."""
-    lines = [
-        f"lanesSide = {settings.lanes_side};",
-        f"patchesAhead = {settings.patches_ahead};",
-        f"patchesBehind = {settings.patches_behind};",
+def settings_js(settings: Settings) -> str:
+    """The settings' net.js globals (plain assignments, as the game expects; ``settings.write_nested``)."""
+    nested = write_nested(settings)
+    return "\n".join(f"{key} = {_js_value(value)};" for key, value in nested.items() if key != "opt")
+
+
+def opt_js(settings: Settings) -> str:
+    """The ``opt`` object literal (``settings.write_nested``: the keys set, ``tdtrainer_options`` when written)."""
+    opt = write_nested(settings)["opt"]
+    entries = ["  temporal_window: temporal_window"]  # the global below, as the page writes it
+    entries += [
+        f"  {key}: {_js_value(v)}" for key, v in opt.items() if key not in ("temporal_window", "tdtrainer_options")
     ]
-    if settings.train_iterations is not None:
-        lines.append(f"trainIterations = {settings.train_iterations};")
-    if settings.other_agents is not None:
-        lines.append(f"otherAgents = {settings.other_agents};")
-    return "\n".join(lines)
-
-
-def opt_js(settings: NetSettings) -> str:
-    """The ``opt`` object literal (only keys that are set; ``tdtrainer_options`` when any trainer key is)."""
-    entries = ["  temporal_window: temporal_window"]
-    for key in fields.OPT_NAMES[1:]:  # temporal_window: the global above
-        v = getattr(settings, key)
-        if v is not None:
-            entries.append(f"  {key}: {_js_value(v)}")
     entries.append("  layer_defs: layer_defs")
-    trainer = []
-    for key in fields.TRAINER_NAMES:
-        v = getattr(settings, key)
-        if v is not None:
-            trainer.append(f"{key}: {_js_value(v)}")
-    if settings.trainer_method is not None:
-        trainer.append(f"method: {_js_value(settings.trainer_method)}")
-    if trainer:
-        entries.append("  tdtrainer_options: {" + ", ".join(trainer) + "}")
+    if "tdtrainer_options" in opt:
+        trainer = ", ".join(f"{key}: {_js_value(v)}" for key, v in opt["tdtrainer_options"].items())
+        entries.append("  tdtrainer_options: {" + trainer + "}")
     return "var opt = {\n" + ",\n".join(entries) + "\n};"
 
 
-def export_netjs(net: ConvNet, settings: NetSettings, with_weights: bool = True) -> str:
+def export_netjs(net: ConvNet, settings: Settings, with_weights: bool = True) -> str:
     """A net.js for the DeepTraffic page: settings, layer_defs, opt, brain, learn (+ trained weights)."""
     validate(net, settings)
     parts = [
@@ -646,7 +528,7 @@ def export_netjs(net: ConvNet, settings: NetSettings, with_weights: bool = True)
         "",
         "var num_inputs = (lanesSide * 2 + 1) * (patchesAhead + patchesBehind);",
         "var num_actions = 5;",
-        f"var temporal_window = {settings.temporal_window};",
+        f"var temporal_window = {settings.filled().temporal_window};",
         "var network_size = num_inputs * temporal_window + num_actions * temporal_window + num_inputs;",
         "",
         "var layer_defs = [];",

@@ -20,7 +20,8 @@ API for the training side (torch)::
 
     from autotune.convnet.spec import Input, FC, Regression, expand
     from autotune.convnet.torch_bridge import build_torch, to_torch, from_torch
-    from autotune.convnet.netjson import NetSettings, write_net, dumps_net, export_netjs
+    from autotune.convnet.netjson import write_net, dumps_net, export_netjs
+    from autotune.convnet.settings import Settings
     from autotune.learner.brain_policy import evaluate_net
 
     layers = expand([Input(net_inputs), FC(36, "tanh"), FC(24, "tanh"), Regression(5)])
@@ -28,8 +29,8 @@ API for the training side (torch)::
     module = build_torch(layers, dtype=torch.float32)   # nn.Sequential subclass; Linear k ↔ k-th FC
     ...train module...
     net = from_torch(module, layers)                    # ConvNet (float64) with the trained weights
-    settings = NetSettings(lanes_side=3, patches_ahead=50, patches_behind=10, temporal_window=0,
-                           other_agents=0, epsilon_test_time=0.0)  # + opt fields (gamma, …) if wanted
+    settings = Settings(lanes_side=3, patches_ahead=50, patches_behind=10, temporal_window=0,
+                        other_agents=0, epsilon_test_time=0.0)  # None / absent: not set (a default applies)
     write_net("out/net.json", net, settings)            # convnetjs JSON + net.config.json beside it
     export_netjs(net, settings)                         # net.js text for the DeepTraffic page
     result = evaluate_net(net, settings, "v2-official") # exact evaluation (sim.protocols.EvalResult)
@@ -315,6 +316,12 @@ def layer_sizes(layers: Sequence[Layer]) -> list[tuple[int, int]]:
             raise NetSpecError(f"layers[{i}]: {layer!r} is not a layer")
         prev = sizes[-1][1]
     return sizes
+
+
+def param_count(layers: Sequence[Layer]) -> int:
+    """Weights + biases of the expanded ``layers`` (the fc layers': in·out + out; the rest hold none)."""
+    return sum(n_in * n_out + n_out for layer, (n_in, n_out) in zip(layers, layer_sizes(layers), strict=True)
+               if isinstance(layer, FC))  # fmt: skip
 
 
 def _is_int(v: Any) -> bool:

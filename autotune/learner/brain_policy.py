@@ -39,7 +39,7 @@ Usage::
     result = evaluate_net(net, settings, "v2-official")             # sim.protocols.EvalResult
     result = evaluate_net(net, settings, "v1-original", seed=2001)  # evaluate.js, one repetition
 
-    policy = BrainPolicy(net, settings, "v2")                       # for sim.protocols.evaluate
+    policy = BrainPolicy.of_settings(net, settings, "v2")           # for sim.protocols.evaluate
     stream = policy.prepare("v2-official", seed=1)
     sim.protocols.evaluate(config, policy, "v2-official", stream_state=stream)
 """
@@ -61,9 +61,10 @@ from autotune.convnet.deepqlearn import (
     window_push,
 )
 from autotune.convnet.forward import FlatNet, flatten, forward_flat
-from autotune.convnet.netjson import NetSettings, validate
+from autotune.convnet.netjson import check_sizes
 from autotune.convnet.random import build_draws, gauss_skip
-from autotune.convnet.spec import NUM_ACTIONS, ConvNet
+from autotune.convnet.settings import Settings
+from autotune.convnet.spec import NUM_ACTIONS, ConvNet, net_input_size
 from sim import engine
 from sim.config import ConfigError, EngineConfig
 from sim.protocols import (
@@ -174,35 +175,52 @@ class BrainPolicy:
     def __init__(
         self,
         net: ConvNet,
-        settings: NetSettings,
-        ruleset: str | None = None,
+        engine: EngineConfig,
+        temporal_window: int,
+        epsilon: float,
         *,
-        epsilon: float | None = None,
         n_worlds: int = 1,
         name: str | None = None,
     ) -> None:
-        validate(net, settings)
+        check_sizes(net, engine.lanes_side, engine.patches_ahead, engine.patches_behind, temporal_window)
         self.net = net
-        self.settings = settings
-        self.ruleset = ruleset or settings.engine
-        if self.ruleset not in ("v1", "v2"):
-            raise ConfigError(f"ruleset: '{self.ruleset}' is not a ruleset; use v1 or v2")
-        self.epsilon = settings.epsilon_test_time if epsilon is None else float(epsilon)
+        self.engine = engine
+        self.ruleset = engine.ruleset
+        self.epsilon = float(epsilon)
         self.name = name or f"brain[{net.hidden or 'linear'}]"
         self.flat: FlatNet = flatten(net)
-        tw = settings.temporal_window
+        tw = temporal_window
+        net_inputs = net_input_size(engine.num_inputs, tw)
         self.gcfg = np.zeros(N_GCFG, dtype=np.int64)
         self.gcfg[G_RULESET] = RULESET_V1 if self.ruleset == "v1" else RULESET_V2
         self.gcfg[G_TW] = tw
-        self.gcfg[G_NUM_STATES] = settings.num_inputs
-        self.gcfg[G_NET_INPUTS] = settings.net_inputs
+        self.gcfg[G_NUM_STATES] = engine.num_inputs
+        self.gcfg[G_NET_INPUTS] = net_inputs
         self.gcfg[G_WINDOW] = max(tw, 2)
         self.gcfg[G_N_BRAINS] = MAX_BRAINS
         self.gflt = np.array([self.epsilon], dtype=np.float64)
-        self.netin = np.zeros(settings.net_inputs)
-        self.buf = np.zeros((2, max(self.flat.max_width, settings.net_inputs)))
+        self.netin = np.zeros(net_inputs)
+        self.buf = np.zeros((2, max(self.flat.max_width, net_inputs)))
         self.stream_state: int | None = None
         self.reset(n_worlds)
+
+    @classmethod
+    def of_settings(
+        cls,
+        net: ConvNet,
+        settings: Settings,
+        ruleset: str | None = None,
+        *,
+        other_agents: int | None = None,
+        epsilon: float | None = None,
+        n_worlds: int = 1,
+        name: str | None = None,
+    ) -> BrainPolicy:
+        """The brain of a net file: its engine (``engine_config``), its temporal window and ε_test (net.js defaults)."""
+        brain = settings.filled()
+        eps = brain.epsilon_test_time if epsilon is None else epsilon
+        engine = engine_config(settings, ruleset, other_agents)
+        return cls(net, engine, brain.temporal_window, eps, n_worlds=n_worlds, name=name)
 
     compiled = staticmethod(brain_policy)
 
@@ -312,26 +330,25 @@ class BrainPolicy:
         return out
 
 
-def engine_config(settings: NetSettings, ruleset: str | None = None, other_agents: int | None = None) -> EngineConfig:
-    """The simulator configuration a net is evaluated in (v1: no agents; v2: the net's otherAgents, else 0)."""
+def engine_config(settings: Settings, ruleset: str | None = None, other_agents: int | None = None) -> EngineConfig:
+    """The simulator configuration a net file is evaluated in: its engine unless ``ruleset`` says otherwise, and
+    in v2 ``other_agents`` or else the file's otherAgents (0 when unset), capped at 10 as the engine does
+    from its first reset (spec v2 §8.1). v1 takes no other agents (``EngineConfig`` says so if asked)."""
     ruleset = ruleset or settings.engine
     if ruleset == "v1":
-        if other_agents:
-            raise ConfigError("other_agents: the v1 engine has no other agents; use --ruleset v2")
-        agents = 0
+        other_agents = other_agents or 0
     else:
-        agents = other_agents if other_agents is not None else (settings.other_agents or 0)
-        agents = min(agents, 10)  # the engine caps at 10 from the first reset (spec v2 §8.1)
+        other_agents = min(other_agents if other_agents is not None else (settings.other_agents or 0), 10)
     return EngineConfig(
         ruleset=ruleset,
         lanes_side=settings.lanes_side,
         patches_ahead=settings.patches_ahead,
         patches_behind=settings.patches_behind,
-        other_agents=agents,
+        other_agents=other_agents,
     )
 
 
-def resolve_ruleset(settings: NetSettings, protocol: str, ruleset: str | None) -> str:
+def resolve_ruleset(settings: Settings, protocol: str, ruleset: str | None) -> str:
     """Explicit ruleset, else the protocol's, else the net's own engine."""
     if ruleset:
         return ruleset
@@ -343,7 +360,7 @@ def resolve_ruleset(settings: NetSettings, protocol: str, ruleset: str | None) -
 
 def evaluate_net(
     net: ConvNet,
-    settings: NetSettings,
+    settings: Settings,
     protocol: str = V2_OFFICIAL,
     *,
     ruleset: str | None = None,
@@ -358,23 +375,60 @@ def evaluate_net(
     gauss_cache: int = 0,
     engine_load: bool = True,
 ) -> EvalResult:
-    """Evaluate a trained net exactly as the original harness would (per-run scores in run order).
+    """Evaluate a net file's trained net exactly as the original harness would (per-run scores in run order).
 
     ``protocol``: v2-official, v1-original, v1-distribution or custom (``sim.protocols``);
     ``ruleset`` defaults to the protocol's (custom: the net's engine); ``other_agents`` (v2)
-    defaults to the net's ``otherAgents`` (0 when unset); ``gauss_cache``: convnetjs's Gaussian
-    cache flag before the brain build (0 = fresh process, see ``BrainPolicy.prepare``);
-    ``engine_load``: v1-original only, whether the engine's 60 construction draws follow the
-    brain build (evaluate.js: yes; the learner_scores.json harness: no).
+    defaults to the net's ``otherAgents`` (0 when unset); the temporal window and ε_test are the
+    file's, or deepqlearn's defaults. The rest as ``evaluate_brain``.
     """
     ruleset = resolve_ruleset(settings, protocol, ruleset)
-    config = engine_config(settings, ruleset, other_agents)
-    policy = BrainPolicy(net, settings, ruleset, epsilon=epsilon, name=name)
-    proto = PROTOCOLS.get(protocol)
+    brain = settings.filled()
+    return evaluate_brain(
+        net,
+        engine_config(settings, ruleset, other_agents),
+        brain.temporal_window,
+        brain.epsilon_test_time if epsilon is None else epsilon,
+        protocol,
+        seed=seed,
+        runs=runs,
+        frames=frames,
+        threads=threads,
+        progress=progress,
+        name=name,
+        gauss_cache=gauss_cache,
+        engine_load=engine_load,
+    )
+
+
+def evaluate_brain(
+    net: ConvNet,
+    engine: EngineConfig,
+    temporal_window: int,
+    epsilon: float,
+    protocol: str = V2_OFFICIAL,
+    *,
+    seed: int | None = None,
+    runs: int | None = None,
+    frames: int | None = None,
+    threads: int | None = None,
+    progress: ProgressFn | None = None,
+    name: str | None = None,
+    gauss_cache: int = 0,
+    engine_load: bool = True,
+) -> EvalResult:
+    """Evaluate a trained net in ``engine`` with the deepqlearn brain (``temporal_window``, ε = ``epsilon``).
+
+    ``gauss_cache``: convnetjs's Gaussian cache flag before the brain build (0 = fresh process, see
+    ``BrainPolicy.prepare``); ``engine_load``: v1-original only, whether the engine's 60 construction
+    draws follow the brain build (evaluate.js: yes; the learner_scores.json harness: no).
+    """
+    proto = PROTOCOLS.get(protocol)  # (sim.protocols.evaluate refuses a protocol of the other engine)
+    policy = BrainPolicy(net, engine, temporal_window, epsilon, name=name)
     n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
     stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
     return evaluate(
-        config,
+        engine,
         policy,
         protocol,
         seed=seed,
@@ -391,6 +445,7 @@ __all__ = [
     "BrainPolicy",
     "brain_policy",
     "engine_config",
+    "evaluate_brain",
     "evaluate_net",
     "resolve_ruleset",
 ]

@@ -1,15 +1,19 @@
 """Training configuration: every DeepTraffic / deepqlearn hyperparameter, typed and validated.
 
-``TrainConfig`` holds the hyperparameters of the paper's Table 1 under DeepTraffic's own names
-(``lanesSide`` → ``lanes_side``, ``trainIterations`` → ``train_iterations``; deepqlearn's ``opt``
-and ``tdtrainer_options`` keys keep their names). Two ways to build one:
+``TrainConfig`` is the settings record of ``sim.fields`` (``autotune.convnet.settings.Settings``)
+with every field filled, plus the learner's own fields (``layers``, ``dtype``): its fields, types,
+page defaults, ranges and messages come from the table (``sim.config.record``), under
+DeepTraffic's own names (``lanesSide`` → ``lanes_side``, ``trainIterations`` →
+``train_iterations``; deepqlearn's ``opt`` and ``tdtrainer_options`` keys keep theirs). What a
+config does not set is filled by one function, ``Settings.filled``, each default where the original
+applies it. Two ways to build one:
 
 * **flat** — ``TrainConfig(lanes_side=1, …)``, ``TrainConfig.from_mapping({...})``,
-  ``load_toml(path)``: keys are the field names or the DeepTraffic camelCase globals; an absent key
-  takes the value of the **DeepTraffic page's default sample net** (engine_spec.md §10.8:
-  L=0, P=1, B=0, 10,000 iterations, tw 3, fc(1, relu), lr 0.001, momentum 0, batch 64, l2 0.01,
-  experience 3000, start 500, γ 0.7, total 10,000, burnin 1000, ε 0/0) — i.e. what a user gets
-  by editing the template, which spells every one of these keys out.
+  ``load_toml(path)``: keys are the field names or their aliases (camelCase globals, the crowd's
+  columns); an absent key takes the value of the **DeepTraffic page's default sample net**
+  (engine_spec.md §10.8: L=0, P=1, B=0, 10,000 iterations, tw 3, fc(1, relu), lr 0.001,
+  momentum 0, batch 64, l2 0.01, experience 3000, start 500, γ 0.7, total 10,000, burnin 1000,
+  ε 0/0) — i.e. what a user gets by editing the template, which spells every one of these keys out.
 * **nested** (``net.js`` / ``learner_scores.json`` form) — a mapping with ``opt`` and/or
   ``tdtrainer_options`` sub-mappings. Absent keys then follow convnetjs exactly (spec §10.1): a
   key missing from ``opt`` takes deepqlearn's library default (tw 1, experience 30000,
@@ -17,7 +21,8 @@ and ``tdtrainer_options`` keys keep their names). Two ways to build one:
   ε_test 0.01); with no ``tdtrainer_options`` at all the Brain's own trainer options apply
   (lr 0.01, momentum 0, batch 64, l2 0.01), but a *given* ``tdtrainer_options`` object is handed
   to the Trainer, whose defaults fill its gaps: lr 0.01, l1 0, l2 0, batch 1, **momentum 0.9**,
-  method sgd.
+  method sgd (the ``page_default``, ``deepqlearn_default`` and ``trainer_default`` columns of
+  ``sim.fields``). ``to_deepqlearn`` writes this form back (``settings.write_nested``).
 
 ``layers`` is the hidden part of ``layer_defs`` (between the input layer, whose size deepqlearn
 derives, and the final ``regression(5)``), as ``autotune.convnet.spec`` layer definitions; it accepts
@@ -31,16 +36,16 @@ range; unknown keys name the nearest valid key.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from autotune.convnet import spec
+from autotune.convnet.settings import Settings, read, write_nested
 from sim import fields
-from sim.config import RULESETS, ConfigError, EngineConfig, input_size, nearest_key_error
+from sim.config import ConfigError, EngineConfig, did_you_mean, input_size, nearest_key_error, record
 
 __all__ = [
     "ConfigError",
@@ -54,37 +59,16 @@ __all__ = [
 ]
 
 NUM_ACTIONS = spec.NUM_ACTIONS
-TRAINER_METHODS = ("sgd", "adagrad", "windowgrad", "adadelta", "nesterov")
+TRAINER_METHODS = fields.TRAINER_METHODS
 DTYPES = ("float32", "float64")
 # fc activations: convnetjs's four, plus two strings that explicitly mean "none" ('softmax' occurs in
 # the crowd's nets; convnetjs adds no layer for it, so the fc stays linear). Anything else is a typo.
 ACTIVATIONS = ("relu", "tanh", "sigmoid", "maxout", "softmax", "linear")
 
-# DeepTraffic's global names (and the crowd CSV's column names) → field names.
-CAMEL_ALIASES = {**fields.ALIASES, "hidden_layers": "layers", "trainer_method": "method"}
+# The crowd CSV's name of ``layers`` (the settings' own aliases are in ``sim.fields``).
+LAYERS_ALIASES = {"hidden_layers": "layers"}
 # Keys of a nested (net.js-style) mapping that are documentation, not configuration.
 IGNORED_KEYS = ("_comment", "comment", "description", "name")
-
-# deepqlearn library defaults for keys absent from ``opt`` (spec §10.1).
-# (start_learn_threshold: ⌊min(0.1·experience_size, 1000)⌋, computed from the experience size)
-DEEPQLEARN_OPT_DEFAULTS: dict[str, Any] = {
-    f.name: f.deepqlearn_default for f in fields.group("opt") if f.deepqlearn_default is not None
-}
-# deepqlearn's own tdtrainer_options when the user passes none.
-BRAIN_TRAINER_DEFAULTS: dict[str, Any] = {
-    f.name: f.deepqlearn_default for f in fields.group("trainer") if f.deepqlearn_default is not None
-}
-# convnetjs Trainer defaults for keys missing from a given tdtrainer_options object.
-TRAINER_DEFAULTS: dict[str, Any] = {
-    "learning_rate": 0.01,
-    "l1_decay": 0.0,
-    "l2_decay": 0.0,
-    "batch_size": 1,
-    "method": "sgd",
-    "momentum": 0.9,
-    "ro": 0.95,
-    "eps": 1e-6,
-}
 OPT_KEYS = (
     *fields.OPT_NAMES,
     "layer_defs",
@@ -92,7 +76,6 @@ OPT_KEYS = (
     "tdtrainer_options",
     "random_action_distribution",
 )
-TRAINER_KEYS = (*fields.TRAINER_NAMES, "method", "ro", "eps")
 
 
 def parse_layers(value: Any) -> tuple[spec.Layer, ...]:
@@ -126,10 +109,10 @@ def parse_layers(value: Any) -> tuple[spec.Layer, ...]:
         raise ConfigError(f"layers: {exc}") from None
 
 
-def _choice_error(field: str, value: Any, valid: Sequence[str]) -> ConfigError:
-    close = difflib.get_close_matches(str(value), list(valid), n=1, cutoff=0.4)
-    hint = f"; did you mean '{close[0]}'?" if close else ""
-    return ConfigError(f"{field}: {value!r} is not allowed{hint} (use one of {', '.join(valid)})")
+def _choice_error(field: str, value: Any, valid: tuple[str, ...]) -> ConfigError:
+    return ConfigError(
+        f"{field}: {value!r} is not allowed{did_you_mean(str(value), valid)} (use one of {', '.join(valid)})"
+    )
 
 
 def _check_activations(layers: Sequence[spec.Layer]) -> None:
@@ -193,90 +176,28 @@ def run_schedule(train_iterations: int) -> tuple[int, int]:
 
 
 @dataclasses.dataclass(frozen=True)
+@record(complete=True)
 class TrainConfig:
-    """One DeepTraffic training setup (engine + deepqlearn brain + trainer). Units in brackets."""
+    """One DeepTraffic training setup: every ``sim.fields`` setting, filled, plus the learner's own fields.
 
-    # -- engine / input window (net.js globals) ---------------------------------------------
-    ruleset: str = "v2"
-    """Engine rules: 'v2' (2018 multi-agent site, default) or 'v1' (2017 single-car engine)."""
-    lanes_side: int = 0
-    """lanesSide [lanes]: lanes seen on each side of the car's target lane (0–50)."""
-    patches_ahead: int = 1
-    """patchesAhead [grid rows of 10 px]: rows seen ahead of the car's front row (0–70)."""
-    patches_behind: int = 0
-    """patchesBehind [grid rows]: rows seen from the car's front row backwards (0–70)."""
-    other_agents: int = 0
-    """otherAgents [cars]: v2 extra red cars (0–10); random drivers during training, the net in evaluation."""
-    train_iterations: int = 10000
-    """trainIterations [decisions]: training length; 30 frames each, split into runs as train.js does."""
-    # -- deepqlearn opt ----------------------------------------------------------------------
-    temporal_window: int = 3
-    """temporal_window [decisions]: past (state, action) pairs appended to the input (0–100)."""
-    experience_size: int = 3000
-    """experience_size [transitions]: replay memory size; random replacement once full (1–2,000,000)."""
-    start_learn_threshold: int = 500
-    """start_learn_threshold [transitions]: learning starts once the memory holds more than this."""
-    gamma: float = 0.7
-    """gamma [1]: discount of the TD target r + γ·max_a Q(s′, a) (0–1)."""
-    learning_steps_total: int = 10000
-    """learning_steps_total [decisions]: age at which ε reaches epsilon_min."""
-    learning_steps_burnin: int = 1000
-    """learning_steps_burnin [decisions]: age until which ε = 1 (fully random)."""
-    epsilon_min: float = 0.0
-    """epsilon_min [probability]: exploration floor during training (0–1)."""
-    epsilon_test_time: float = 0.0
-    """epsilon_test_time [probability]: exploration when not learning (evaluation) (0–1)."""
-    # -- network ------------------------------------------------------------------------------
+    Build it with keywords (absent ones take the page's defaults), ``from_mapping`` (flat or nested,
+    see the module doc) or ``from_settings``; ``settings`` gives the record back, ``to_deepqlearn``
+    the net.js form.
+    """
+
     layers: tuple = (spec.FC(1, "relu"),)
     """Hidden layers (netspec defs; string 'fc:10:relu|fc:5:tanh' accepted); input and regression(5) implied."""
-    # -- tdtrainer_options -------------------------------------------------------------------
-    learning_rate: float = 0.001
-    """learning_rate [1]: step size (unused by adadelta) (0–10)."""
-    momentum: float = 0.0
-    """momentum [1]: sgd momentum μ (v = μv − lr·g; w += v) and nesterov's μ (0–1)."""
-    batch_size: int = 64
-    """batch_size [samples]: replay samples per update; exactly one update per decision (1–4096)."""
-    l2_decay: float = 0.01
-    """l2_decay [1]: L2 weight decay added to the weight gradients, not the biases (0–10)."""
-    l1_decay: float = 0.0
-    """l1_decay [1]: L1 decay; convnetjs fc layers have l1_decay_mul 0, so it only acts via a layer's mul (0–10)."""
-    method: str = "sgd"
-    """Trainer method: sgd, adagrad, windowgrad, adadelta, nesterov (spec §10.9)."""
-    ro: float = 0.95
-    """ro [1]: decay of the squared-gradient averages of windowgrad/adadelta (0–1)."""
-    eps: float = 1e-6
-    """eps [1]: denominator guard of adagrad/windowgrad/adadelta (> 0)."""
-    # -- implementation -----------------------------------------------------------------------
     dtype: str = "float32"
     """Training precision of the torch learner: 'float32' (fast) or 'float64' (as convnetjs)."""
 
+    if TYPE_CHECKING:
+
+        def __init__(self, **values: Any) -> None: ...
+
+        def __getattr__(self, name: str) -> Any: ...
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "layers", parse_layers(self.layers))
-        if self.ruleset not in RULESETS:
-            raise ConfigError(f"ruleset: '{self.ruleset}' is not a ruleset; use one of {', '.join(RULESETS)}")
-        ints = [(f.name, int(f.low), int(f.high)) for f in fields.FIELDS if f.kind is int]
-        for name, lo, hi in ints:
-            value = getattr(self, name)
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-                object.__setattr__(self, name, value)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(f"{name}: must be an integer in {lo}–{hi:,}, got {value!r}")
-            if not lo <= value <= hi:
-                raise ConfigError(f"{name}: {value} is out of range; allowed {lo}–{hi:,}")
-        floats = [(f.name, f.low, f.high) for f in fields.FIELDS if f.kind is float] + [("ro", 0.0, 1.0)]
-        for name, flo, fhi in floats:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"{name}: must be a number in [{flo:g}, {fhi:g}], got {value!r}")
-            if not flo <= value <= fhi:
-                raise ConfigError(f"{name}: {value!r} is out of range; allowed [{flo:g}, {fhi:g}]")
-            object.__setattr__(self, name, float(value))
-        if isinstance(self.eps, bool) or not isinstance(self.eps, (int, float)) or not (0.0 < self.eps <= 1.0):
-            raise ConfigError(f"eps: {self.eps!r} is out of range; allowed (0, 1]")
-        object.__setattr__(self, "eps", float(self.eps))
-        if self.method not in TRAINER_METHODS:
-            raise _choice_error("method", self.method, TRAINER_METHODS)
         if self.dtype not in DTYPES:
             raise ConfigError(f"dtype: '{self.dtype}' is not supported; use one of {', '.join(DTYPES)}")
         if self.start_learn_threshold >= self.experience_size:
@@ -285,7 +206,7 @@ class TrainConfig:
                 "learning starts when the memory holds MORE than the threshold, so it would never start "
                 f"(allowed 0–{self.experience_size - 1})"
             )
-        self.engine_config  # noqa: B018 - validates the engine part (ranges, v1 without agents)
+        self.engine_config  # noqa: B018 - validates the engine part (the input is not empty, v1 without agents)
         try:
             sizes = spec.layer_sizes(self.expanded_layers)
         except spec.NetSpecError as exc:
@@ -295,15 +216,17 @@ class TrainConfig:
 
     # -- derived ------------------------------------------------------------------------------
     @property
+    def settings(self) -> Settings:
+        """The DeepTraffic settings record of this config (what its net.js sets; v1: no otherAgents)."""
+        values = {f.name: getattr(self, f.name) for f in fields.FIELDS}
+        if self.ruleset == "v1":
+            values["other_agents"] = None
+        return Settings(**values)
+
+    @property
     def engine_config(self) -> EngineConfig:
-        """The simulator configuration (ruleset, input window, agents)."""
-        return EngineConfig(
-            ruleset=self.ruleset,
-            lanes_side=self.lanes_side,
-            patches_ahead=self.patches_ahead,
-            patches_behind=self.patches_behind,
-            other_agents=self.other_agents,
-        )
+        """The simulator configuration (ruleset, input window, other agents)."""
+        return EngineConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(EngineConfig)})
 
     @property
     def num_states(self) -> int:
@@ -329,6 +252,11 @@ class TrainConfig:
             raise ConfigError(f"layers: {exc}") from None
 
     @property
+    def param_count(self) -> int:
+        """Weights + biases of the convnetjs net this config builds (fc layers; maxout, svm, lrn add none)."""
+        return spec.param_count(self.expanded_layers)
+
+    @property
     def hidden(self) -> str:
         """The crowd's string form of ``layers``."""
         return spec.format_hidden(self.layers)
@@ -346,7 +274,7 @@ class TrainConfig:
 
     def replace(self, **changes: Any) -> TrainConfig:
         """A copy with some fields changed (camelCase names accepted), validated again."""
-        snake = {CAMEL_ALIASES.get(k, k): v for k, v in changes.items()}
+        snake = {LAYERS_ALIASES.get(k) or fields.name_of(k) or k: v for k, v in changes.items()}
         return TrainConfig.from_mapping({**self.to_mapping(), **snake})
 
     # -- (de)serialisation ------------------------------------------------------------------
@@ -360,118 +288,93 @@ class TrainConfig:
 
     def to_deepqlearn(self) -> dict[str, Any]:
         """net.js-style settings: the globals, ``opt`` and ``tdtrainer_options`` as DeepTraffic writes them."""
-        trainer: dict[str, Any] = {
-            "learning_rate": self.learning_rate,
-            "momentum": self.momentum,
-            "batch_size": self.batch_size,
-            "l2_decay": self.l2_decay,
+        nested = write_nested(self.settings)
+        opt = nested.pop("opt")
+        return {
+            **nested,
+            "num_inputs": self.num_states,
+            "num_actions": NUM_ACTIONS,
+            "temporal_window": self.temporal_window,
+            "network_size": self.net_inputs,
+            "layer_defs": [_layer_to_dict(layer) for layer in self.layer_defs],
+            "opt": opt,
         }
-        if self.l1_decay:
-            trainer["l1_decay"] = self.l1_decay
-        if self.method != "sgd":
-            trainer["method"] = self.method
-            trainer["ro"] = self.ro
-            trainer["eps"] = self.eps
-        out: dict[str, Any] = {
-            "lanesSide": self.lanes_side,
-            "patchesAhead": self.patches_ahead,
-            "patchesBehind": self.patches_behind,
-            "trainIterations": self.train_iterations,
-        }
-        if self.ruleset == "v2":
-            out["otherAgents"] = self.other_agents
-        out.update(
-            {
-                "num_inputs": self.num_states,
-                "num_actions": NUM_ACTIONS,
-                "temporal_window": self.temporal_window,
-                "network_size": self.net_inputs,
-                "layer_defs": [_layer_to_dict(layer) for layer in self.layer_defs],
-                "opt": {
-                    "temporal_window": self.temporal_window,
-                    "experience_size": self.experience_size,
-                    "start_learn_threshold": self.start_learn_threshold,
-                    "gamma": self.gamma,
-                    "learning_steps_total": self.learning_steps_total,
-                    "learning_steps_burnin": self.learning_steps_burnin,
-                    "epsilon_min": self.epsilon_min,
-                    "epsilon_test_time": self.epsilon_test_time,
-                    "tdtrainer_options": trainer,
-                },
-            }
-        )
-        return out
+
+    @classmethod
+    def from_settings(
+        cls, settings: Settings, *, nested: bool, trainer_given: bool | None = None, **learner: Any
+    ) -> TrainConfig:
+        """``settings`` with what it leaves unset filled (``Settings.filled``) plus the learner's (layers, dtype).
+
+        A nested (net.js) record without layers gets deepqlearn's linear Q-function, a flat one the page's fc(1).
+        """
+        if nested:
+            learner.setdefault("layers", ())
+        return cls(**settings.filled(nested=nested, trainer_given=trainer_given).values(), **learner)
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> TrainConfig:
         """Build from a flat or nested (``opt`` / ``tdtrainer_options``) mapping; see the module doc."""
         if not isinstance(values, Mapping):
             raise ConfigError(f"config: expected a mapping of settings, got {type(values).__name__}")
-        names = [f.name for f in dataclasses.fields(cls)]
-        valid = names + list(CAMEL_ALIASES) + ["opt", "tdtrainer_options", "layer_defs"]
         nested = "opt" in values or "tdtrainer_options" in values
-        kwargs: dict[str, Any] = {}
+        given: dict[str, Any] = {}
+        learner: dict[str, Any] = {}
 
-        def put(key: str, value: Any, where: str) -> None:
-            name = CAMEL_ALIASES.get(key, key)
-            if name in kwargs and kwargs[name] != value:
-                raise ConfigError(f"{where}{key}: given twice with different values ({kwargs[name]!r}, {value!r})")
-            kwargs[name] = value
+        def merge(part: Mapping[str, Any], where: str) -> None:
+            for name, value in part.items():
+                if name in given and given[name] != value:
+                    raise ConfigError(f"{where}{name}: given twice with different values ({given[name]!r}, {value!r})")
+                given[name] = value
 
-        for key, value in values.items():
-            if key in IGNORED_KEYS or key in ("opt", "tdtrainer_options"):
-                continue
+        def layers(value: Any, where: str) -> None:
+            if "layers" in learner and learner["layers"] != value:
+                raise ConfigError(f"{where}layers: given twice with different values")
+            learner["layers"] = value
+
+        top, others = read(values)
+        merge(top, "")
+        own = [f.name for f in dataclasses.fields(cls) if fields.name_of(f.name) is None]
+        valid = [f.name for f in fields.FIELDS] + list(fields.ALIASES) + own + list(LAYERS_ALIASES)
+        valid += ["opt", "tdtrainer_options", "layer_defs"]
+        for key, value in others.items():
+            if key in IGNORED_KEYS or key in ("opt", "tdtrainer_options", "num_inputs", "num_actions", "network_size"):
+                continue  # opt: below; num_*: derived quantities of net.js, checked below when nested
             if key == "layer_defs":
-                put("layers", _hidden_from_layer_defs(value), "")
-                continue
-            if key in ("num_inputs", "num_actions", "network_size"):
-                continue  # derived quantities of net.js; checked below when nested
-            if CAMEL_ALIASES.get(key, key) not in names:
+                layers(_hidden_from_layer_defs(value), "")
+            elif key in LAYERS_ALIASES or key == "layers":
+                layers(parse_layers(value), "")
+            elif key in own:
+                learner[key] = value
+            else:
                 raise nearest_key_error("training config", key, valid)
-            put(key, value, "")
+        trainer = None
         if nested:
             opt = values.get("opt", {}) or {}
             if not isinstance(opt, Mapping):
                 raise ConfigError("opt: must be a mapping of deepqlearn options")
-            for key, value in opt.items():
-                if key in IGNORED_KEYS:
+            part, rest = read(opt, where="opt.", groups=("opt",), aliases=False)
+            merge(part, "opt.")
+            for key, value in rest.items():
+                if key in IGNORED_KEYS or key == "tdtrainer_options":
                     continue
                 if key not in OPT_KEYS:
                     raise nearest_key_error("deepqlearn opt", key, list(OPT_KEYS))
-                if key == "tdtrainer_options":
-                    continue
                 if key == "layer_defs":
-                    put("layers", _hidden_from_layer_defs(value), "opt.")
+                    layers(_hidden_from_layer_defs(value), "opt.")
                 elif key == "hidden_layer_sizes":
-                    put("layers", [spec.FC(int(n), "relu") for n in value], "opt.")
-                elif key == "random_action_distribution":
+                    layers(tuple(spec.FC(int(n), "relu") for n in value), "opt.")
+                else:  # random_action_distribution
                     raise ConfigError("opt.random_action_distribution: not supported (no DeepTraffic template uses it)")
-                else:
-                    put(key, value, "opt.")
             trainer = values.get("tdtrainer_options", opt.get("tdtrainer_options"))
-            for key, default in DEEPQLEARN_OPT_DEFAULTS.items():
-                kwargs.setdefault(key, default)
-            if "start_learn_threshold" not in kwargs:
-                exp = kwargs["experience_size"]
-                kwargs["start_learn_threshold"] = int(math.floor(min(exp * 0.1, 1000)))
-            if trainer is None:
-                tdefaults = {**TRAINER_DEFAULTS, **BRAIN_TRAINER_DEFAULTS}
-                trainer = {}
-            else:
+            if trainer is not None:
                 if not isinstance(trainer, Mapping):
                     raise ConfigError("tdtrainer_options: must be a mapping of trainer options")
-                tdefaults = TRAINER_DEFAULTS
-            for key, value in trainer.items():
-                if key not in TRAINER_KEYS:
-                    raise nearest_key_error("tdtrainer_options", key, list(TRAINER_KEYS))
-                put(key, value, "tdtrainer_options.")
-            for key, default in tdefaults.items():
-                kwargs.setdefault(key, default)
-            kwargs.setdefault("layers", ())  # deepqlearn without layer_defs: a linear Q-function
-        try:
-            config = cls(**kwargs)
-        except TypeError as exc:  # pragma: no cover - keys are checked above
-            raise ConfigError(f"config: {exc}") from None
+                part, rest = read(trainer, where="tdtrainer_options.", groups=("trainer",), aliases=False)
+                for key in rest:
+                    raise nearest_key_error("tdtrainer_options", key, list(fields.TRAINER_NAMES))
+                merge(part, "tdtrainer_options.")
+        config = cls.from_settings(Settings(**given), nested=nested, trainer_given=trainer is not None, **learner)
         declared = values.get("num_inputs")
         if nested and declared is not None and declared != config.num_states:
             raise ConfigError(
@@ -521,9 +424,13 @@ def load_toml(path: str | Path) -> TrainConfig:
 # presets (the reference configurations of learner_scores.json / learner_scores_v2.json)
 # --------------------------------------------------------------------------------------------
 
-# the game page's sample net (other_agents and l1_decay: the page sets neither, 0 applies)
+# the game page's sample net: what its template spells out (not otherAgents or the trainer's other options)
 _DEFAULT_TEMPLATE: dict[str, Any] = {
-    **{f.name: f.page_default for f in fields.FIELDS if f.name not in ("other_agents", "l1_decay")},
+    **{
+        f.name: f.page_default
+        for f in fields.FIELDS
+        if f.group != "site" and f.name != "other_agents" and f.write == "always"
+    },
     "layers": "fc:1:relu",
 }
 _NETWORK_BASIC: dict[str, Any] = {

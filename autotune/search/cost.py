@@ -26,7 +26,6 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from autotune import TrainConfig
-from autotune.search.space import param_count
 
 __all__ = ["FEATURES", "PRIOR", "CostModel", "features", "Observation"]
 
@@ -62,7 +61,7 @@ def features(config: TrainConfig, *, evaluated: bool = True) -> np.ndarray:
     """The work terms of one rung of ``config`` (at its ``train_iterations``), see ``FEATURES``."""
     b = float(config.train_iterations)
     cars = 1.0 + config.other_agents
-    p = float(param_count(config))
+    p = float(config.param_count)
     learning = max(0.0, b - config.start_learn_threshold)
     ev = 1.0 if evaluated else 0.0
     return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,

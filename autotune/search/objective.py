@@ -196,17 +196,16 @@ def _run_ladder(
     rung_nets: dict[int, str],
 ) -> TrialOutcome:
     """Climb the budget ladder: a fresh training per rung, each scored officially and reported at B_r/B_0."""
-    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, net_settings, official_protocol
+    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, official_protocol
     from autotune.learner import train
     from autotune.search.ladder import rung_config
-    from autotune.search.space import param_count
 
     top = TrainConfig.from_mapping(task.config)
     protocol = task.final_protocol or official_protocol(top)
     rungs: list[dict[str, Any]] = []
     attrs.update(
         config=top.to_mapping(), settings=top.to_deepqlearn(), input_size=top.net_inputs, num_states=top.num_states,
-        param_count=param_count(top), official_protocol=protocol, ladder=list(task.rungs), rungs=rungs,
+        param_count=top.param_count, official_protocol=protocol, ladder=list(task.rungs), rungs=rungs,
         frames_simulated=0,
     )  # fmt: skip
     value: float | None = None
@@ -252,7 +251,7 @@ def _run_ladder(
         if report(step, attrs["frames_simulated"], score) and r < len(task.rungs) - 1:
             return finish(PRUNED, None, f"pruned after rung {r} ({budget:,} iterations, {score:.2f} mph) by the pruner")
         if r == len(task.rungs) - 1:
-            net_js = export_netjs(convnet, net_settings(config))
+            net_js = export_netjs(convnet, config.settings)
             attrs.update(official_mean=ev.mean, official_std=ev.std, train_seconds=result.train_seconds,
                          eval_seconds=rungs[-1]["eval_seconds"])  # fmt: skip
     assert value is not None
@@ -266,9 +265,8 @@ def _run(
     t0: float,
     finish: Callable[..., TrialOutcome],
 ) -> TrialOutcome:
-    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, net_settings, official_protocol
+    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, official_protocol
     from autotune.learner import train  # (``autotune.train`` is the ``python -m autotune.train`` module)
-    from autotune.search.space import param_count
 
     config = TrainConfig.from_mapping(task.config)
     protocol = task.final_protocol or official_protocol(config)
@@ -277,7 +275,7 @@ def _run(
         settings=config.to_deepqlearn(),
         input_size=config.net_inputs,
         num_states=config.num_states,
-        param_count=param_count(config),
+        param_count=config.param_count,
         official_protocol=protocol,
     )
     limits = _Limits.of(task, t0)
@@ -323,7 +321,7 @@ def _run(
     convnet = result.convnet()
     ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress)
     net_json = dumps_net(convnet)
-    net_js = export_netjs(convnet, net_settings(config))
+    net_js = export_netjs(convnet, config.settings)
     attrs["eval_seconds"] = time.perf_counter() - te
     attrs["frames_simulated"] += ev.runs * ev.frames
     attrs.update(official_mean=ev.mean, official_std=ev.std)

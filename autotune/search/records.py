@@ -178,7 +178,7 @@ def _download(storages: Storages, trial: FrozenTrial, key: str) -> str | None:
 
 
 def _export(storages: Storages, trial: FrozenTrial, out_dir: str | Path) -> dict[str, Path]:
-    from autotune import TrainConfig, export_netjs, loads_net, net_settings, write_net
+    from autotune import TrainConfig, export_netjs, loads_net, write_net
 
     text = _download(storages, trial, "artifact_net_json")
     if text is None:
@@ -186,7 +186,7 @@ def _export(storages: Storages, trial: FrozenTrial, out_dir: str | Path) -> dict
     if "config" not in trial.user_attrs:
         raise RecordError(f"trial {trial.number}: no training config stored (user attr config missing)")
     net = loads_net(text, where=f"trial {trial.number} net.json")
-    settings = net_settings(TrainConfig.from_mapping(trial.user_attrs["config"]))
+    settings = TrainConfig.from_mapping(trial.user_attrs["config"]).settings
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"net.json": out / "net.json", "net.config.json": out / "net.config.json", "net.js": out / "net.js"}

@@ -19,14 +19,15 @@ import re
 from collections.abc import Mapping
 from typing import Any, Protocol
 
-from autotune import TrainConfig, format_hidden, layer_sizes
+from autotune import TrainConfig
 from autotune.convnet import spec as netspec
 from autotune.search.ladder import cap_start, relative_schedule
-from autotune.search.spec import FRACTIONS, LAYOUT, Dimension, SpecError, StudySpec, build_config
+from autotune.search.spec import (
+    _FIELD_OF, FRACTIONS, LAYOUT, Dimension, SpecError, StudySpec, build_config, one_minus,
+)  # fmt: skip
+from sim import fields
 
-__all__ = [
-    "DEFAULT_SPACE", "PAPER_SPACE", "Trial", "sample", "dimensions", "to_config", "encode", "param_count", "outside",
-]  # fmt: skip
+__all__ = ["DEFAULT_SPACE", "PAPER_SPACE", "Trial", "sample", "dimensions", "to_config", "encode", "active", "outside"]
 
 
 class Trial(Protocol):
@@ -41,16 +42,23 @@ class Trial(Protocol):
     def suggest_categorical(self, name: str, choices: Any) -> Any: ...
 
 
+def _table_range(name: str) -> dict[str, Any]:
+    """A [space] entry spanning the field's whole range in ``sim.fields``."""
+    low, high = fields.bounds(name)
+    return {"low": low, "high": high}
+
+
 # The paper's full space (Table 1 + the layout), as [space] entries (paper.toml spells out the same).
 # Bounds cover what the crowd explored (shared/crowd/submissions.csv, 164 rows, min–max of each column
-# in brackets) within what the site accepts (sim.fields); log scales where the crowd spans decades.
+# in brackets) within what the site accepts (sim.fields: a range that is the table's is read from it);
+# log scales where the crowd spans decades.
 DEFAULT_SPACE: dict[str, dict[str, Any]] = {
     # crowd 0–50, but 162/164 rows ≤ 10 and two at 50: the road has 7 lanes, so beyond 6 a net only
     # sees off-road zeros (lanes_side 50 is lanes_side 6 plus dead inputs); 10 covers all but those two.
     "lanes_side": {"low": 0, "high": 10},
     "patches_ahead": {"low": 1, "high": 60},  # crowd 1–55; ≥ 1 so the input is never empty
     "patches_behind": {"low": 0, "high": 20},  # crowd 0–20
-    "other_agents": {"low": 0, "high": 10},  # crowd 0–10 (v2 files); the site's maximum is 10
+    "other_agents": _table_range("other_agents"),  # crowd 0–10 (v2 files)
     "temporal_window": {"low": 0, "high": 10},  # crowd 0–10
     "train_iterations": {"low": 5_000, "high": 1_000_000, "log": True},  # crowd 5,000–1,000,000
     "experience_size": {"low": 1_000, "high": 500_000, "log": True},  # crowd 1,000–500,000 (one 0: rejected)
@@ -59,7 +67,8 @@ DEFAULT_SPACE: dict[str, dict[str, Any]] = {
     "batch_size": {"low": 1, "high": 512, "log": True},  # crowd 1–265
     "learning_rate": {"low": 1e-8, "high": 1e-2, "log": True},  # crowd 1e-8–0.01 (mode 0.001)
     "l2_decay": {"low": 1e-8, "high": 1.0, "log": True},  # crowd 1e-8–0.79 (mode 0.01)
-    "momentum": {"low": 0.0, "high": 1.0},  # crowd 0–1 (one 5: rejected by the site's range); mode 0
+    # crowd 0–1 (one 5: rejected by the site's range); mode 0
+    "momentum": _table_range("momentum"),
     "one_minus_gamma": {"low": 1e-4, "high": 0.7, "log": True},  # crowd gamma 0.3–0.99985
     "learning_steps_total": {"low": 10_000, "high": 500_000, "log": True},  # crowd 10,000–500,000
     "learning_steps_burnin": {"low": 100, "high": 100_000, "log": True},  # crowd 300–75,000
@@ -90,8 +99,6 @@ PAPER_SPACE: dict[str, dict[str, Any]] = {
     "activation": DEFAULT_SPACE["activation"],
 }  # fmt: skip
 """``study_configs/paper.toml``'s [space] (a test keeps the two equal)."""
-
-_FC_RE = re.compile(r"^fc:(\d+)(?::([A-Za-z]+))?$")
 
 
 def sample(trial: Trial, spec: StudySpec) -> dict[str, Any]:
@@ -145,7 +152,7 @@ def to_config(spec: StudySpec, params: Mapping[str, Any], budget: int | None = N
         if d.name in LAYOUT:
             continue
         if d.name == "one_minus_gamma":
-            values["gamma"] = float(f"{1.0 - params['one_minus_gamma']:.15g}")
+            values["gamma"] = one_minus(params["one_minus_gamma"])
         elif d.name in FRACTIONS:
             fractions[d.name] = float(params[d.name])
         else:
@@ -178,41 +185,53 @@ def _param_names(spec: StudySpec, params: Mapping[str, Any]) -> list[str]:
 
 
 def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
-    """The params of a real config in this space's coordinates (for crowd submissions); inverse of to_config.
+    """The params of a real config in this space's coordinates: the one encoder (crowd import, tests); inverse of
+    ``to_config`` on what the space can draw.
 
-    Values outside the space's ranges are returned as they are (``outside`` lists them). A hidden
-    layer that is not a plain ``fc:N[:activation]`` (svm, lrn, dropout, …) cannot be expressed as
-    n_layers / neurons_i / activation_i: ``SpecError`` naming it.
+    Values outside the space's ranges or choices are returned as they are (``outside`` lists them).
+    v1 has no other agents, so a v1 config has no ``other_agents`` param. Layout: every hidden layer
+    with neurons is one (``fc:n:act`` → neurons n and its activation, 'linear' when it has none
+    of convnetjs's; ``svm:n`` → neurons n, activation 'svm', which no space offers); a layer
+    without neurons (lrn, dropout) is no parameter and is left out; the unused slots of the fixed
+    shape take their range's first value (``active`` leaves them out).
     """
     params: dict[str, Any] = {}
     for d in spec.space:
-        if d.name in LAYOUT:
+        if d.name in LAYOUT or (d.name == "other_agents" and config.ruleset == "v1"):
             continue
-        if d.name == "one_minus_gamma":
-            params["one_minus_gamma"] = float(f"{1.0 - config.gamma:.15g}")
-        elif d.name in FRACTIONS:
+        if d.name in FRACTIONS:
             steps = config.learning_steps_burnin if d.name == FRACTIONS[0] else config.learning_steps_total
             params[d.name] = steps / max(1, config.train_iterations)
-        else:
-            params[d.name] = getattr(config, d.name)
+            continue
+        value = getattr(config, _FIELD_OF.get(d.name, d.name))
+        params[d.name] = one_minus(value) if d.name == "one_minus_gamma" else value
     if spec.searches_layout:
-        layers = config.layers
+        layers = [layer for layer in config.layers if isinstance(layer, (netspec.FC, netspec.SVM))]
         params["n_layers"] = len(layers)
         for i, layer in enumerate(layers):
-            text = format_hidden([layer])
-            m = _FC_RE.match(text)
-            if m is None:
-                raise SpecError(
-                    f"encode: hidden layer {i} '{text}' is not fc:N[:activation]; "
-                    "the layout space only has plain fc layers"
-                )
-            params[f"neurons_{i}"] = int(m.group(1))
-            params[f"activation_{i}"] = m.group(2) or "linear"
+            if isinstance(layer, netspec.FC):
+                params[f"neurons_{i}"] = layer.num_neurons
+                params[f"activation_{i}"] = layer.activation if layer.activation in netspec.ACTIVATIONS else "linear"
+            else:
+                params[f"neurons_{i}"] = layer.num_classes
+                params[f"activation_{i}"] = "svm"
         dims = spec.dimensions
         for i in range(len(layers), spec.max_layers):  # unused slots of the fixed shape: the first value of each
             params[f"neurons_{i}"] = _first(dims["neurons"])
             params[f"activation_{i}"] = _first(dims["activation"])
     return params
+
+
+def active(params: Mapping[str, Any]) -> dict[str, Any]:
+    """The params that shape the configuration: without the unused slots of the fixed-shape layout
+    (``neurons_i`` / ``activation_i`` for i ≥ n_layers) — what a record of a configuration shows."""
+    n = params.get("n_layers")
+    if not isinstance(n, int):
+        return dict(params)
+    return {
+        k: v for k, v in params.items()
+        if not (k.startswith(("neurons_", "activation_")) and int(k.rsplit("_", 1)[1]) >= n)
+    }  # fmt: skip
 
 
 def _first(d: Dimension) -> Any:
@@ -236,10 +255,3 @@ def outside(spec: StudySpec, params: Mapping[str, Any]) -> list[str]:
         elif d.low is not None and d.high is not None and not d.low <= value <= d.high:
             problems.append(f"{name}: {value!r} outside [{d.low}, {d.high}]")
     return problems
-
-
-def param_count(config: TrainConfig) -> int:
-    """Weights + biases of the convnetjs MLP the config builds (input, hidden layers, regression(5))."""
-    layers = config.expanded_layers
-    return sum(n_in * n_out + n_out for layer, (n_in, n_out) in zip(layers, layer_sizes(layers), strict=True)
-               if isinstance(layer, netspec.FC))  # fmt: skip

@@ -26,7 +26,6 @@ experience size the space can draw.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import os
 import re
@@ -37,7 +36,7 @@ from typing import Any
 
 from autotune import OFFICIAL_PROTOCOL, TrainConfig
 from sim import fields
-from sim.config import RULESETS, ConfigError
+from sim.config import V1_NO_AGENTS, ConfigError, FieldValueError, check, check_other_agents, did_you_mean
 
 __all__ = [
     "SpecError",
@@ -52,6 +51,8 @@ __all__ = [
     "StudySpec",
     "load_spec",
     "parse_spec",
+    "param_bounds",
+    "one_minus",
 ]
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc")
@@ -68,17 +69,27 @@ _FIELD_OF = {
     "learning_steps_burnin_fraction": "learning_steps_burnin", "learning_steps_total_fraction": "learning_steps_total",
 }  # fmt: skip
 PARAMS: tuple[str, ...] = (
-    *(f.name for f in fields.FIELDS if f.name != "gamma"),
+    *(f.name for f in fields.FIELDS if f.name != "gamma" and f.group != "site"),
     "one_minus_gamma",
     "method",
     *FRACTIONS,
     *LAYOUT,
 )
-"""Every name a [space] table may search (the shared search-space vocabulary)."""
+"""Every name a [space] table may search (the shared search-space vocabulary): every setting of ``sim.fields`` but
+the ruleset ([study]) and gamma (searched as ``one_minus_gamma``), and the layout."""
+
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TRAIN_FIELDS = tuple(f.name for f in dataclasses.fields(TrainConfig))
-_FIXED_KEYS = tuple(n for n in _TRAIN_FIELDS if n != "ruleset") + tuple(fields.ALIASES)
+_FIXED_KEYS = (
+    *(n for n in _TRAIN_FIELDS if n != "ruleset"),
+    *(alias for alias, name in fields.ALIASES.items() if name != "ruleset"),
+)
 _DEFAULT_TRIAL_TIMEOUT_S = 1800.0
+
+
+def one_minus(value: float) -> float:
+    """``1 − value`` to 15 significant digits: gamma ↔ ``one_minus_gamma``, either way (0.3 stays 0.3)."""
+    return float(f"{1.0 - value:.15g}")
 
 
 class SpecError(ConfigError):
@@ -367,8 +378,10 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         raise SpecError(f'{src}: [study] name: missing; add name = "my-study"')
     name = _check_name(name, f"{src}: [study] name")
     ruleset = table.get("ruleset", "v2")
-    if ruleset not in RULESETS:
-        raise where.error("ruleset", f"{ruleset!r} is not a ruleset", f"use one of {', '.join(RULESETS)}")
+    try:
+        check(fields.field("ruleset"), ruleset)
+    except FieldValueError as exc:
+        raise where.error("ruleset", exc.problem, 'write ruleset = "v2" (2018 site) or "v1" (2017 engine)') from None
     sampler = table.get("sampler", "tpe")
     if sampler not in SAMPLERS:
         raise where.error(
@@ -480,11 +493,11 @@ def _parse_resources(table: Mapping[str, Any], src: str) -> ResourcesSection:
 def _parse_fixed(table: Mapping[str, Any], src: str, ruleset: str, searched: set[str]) -> tuple[tuple[str, Any], ...]:
     given: dict[str, Any] = {}
     for key, value in table.items():
-        if key == "ruleset":
-            raise SpecError(f"{src}: [fixed] ruleset: the ruleset is a study setting; move it to [study] ruleset")
+        if fields.name_of(key) == "ruleset":
+            raise SpecError(f"{src}: [fixed] {key}: the ruleset is a study setting; move it to [study] ruleset")
         if key not in _FIXED_KEYS:
             raise SpecError(f"{src}: [fixed] {key}: unknown key{_hint(key, _FIXED_KEYS)} (any TrainConfig field)")
-        name = fields.ALIASES.get(key, key)
+        name = fields.name_of(key) or key
         if name in given:
             raise SpecError(f"{src}: [fixed] {key}: given twice (as {name} and its alias); keep one")
         given[name] = value
@@ -516,7 +529,7 @@ def _parse_dimension(name: str, entry: Any, src: str, ruleset: str) -> Dimension
     for key in entry:
         if key not in allowed:
             raise where.error(f"{name}.{key}", f"unknown key{_hint(key, allowed)}", f"use {', '.join(allowed)}")
-    kind, lo_ok, hi_ok = _param_kind(name)
+    kind, lo_ok, hi_ok = param_bounds(name)
     if "choices" in entry:
         extra = [k for k in ("low", "high", "log", "step") if k in entry]
         if extra:
@@ -569,11 +582,12 @@ def _parse_dimension(name: str, entry: Any, src: str, ruleset: str) -> Dimension
     return Dimension(name, kind, low, high, log, step)
 
 
-def _param_kind(name: str) -> tuple[str, float, float | None]:
-    """(kind, smallest, largest accepted value) of a [space] name; the bounds come from sim.fields."""
+def param_bounds(name: str) -> tuple[str, float, float | None]:
+    """(kind, smallest, largest accepted value) of a [space] name: 'int', 'float' or 'str' (choices), the range
+    from sim.fields in sampling coordinates (the layout's open-ended)."""
     if name == "one_minus_gamma":
         g_lo, g_hi = fields.bounds("gamma")
-        return "float", 1.0 - g_hi, 1.0 - g_lo
+        return "float", one_minus(g_hi), one_minus(g_lo)
     if name == "n_layers":
         return "int", 0, None
     if name == "neurons":
@@ -583,13 +597,21 @@ def _param_kind(name: str) -> tuple[str, float, float | None]:
     if name in FRACTIONS:
         return "float", 0.0, 10.0
     f = fields.field(name)
-    return ("int" if f.kind is int else "float"), f.low, f.high
+    if f.kind is str:
+        return "str", 0, None
+    assert f.low is not None and f.high is not None
+    return f.kind.__name__, f.low, f.high
 
 
 def _check_value(
     name: str, value: Any, kind: str, lo: float, hi: float | None, where: _Where, what: str, ruleset: str
 ) -> Any:
     """One bound or choice, of the right type and inside what deepqlearn accepts."""
+    if kind == "str" and name != "activation":
+        try:
+            return check(fields.field(name), value)
+        except FieldValueError as exc:
+            raise where.error(name, f"{what} {exc.problem}", "fix the choice") from None
     if kind == "str":
         example = '"sgd", "adagrad"' if name == "method" else '"relu"'
         if not isinstance(value, str):
@@ -624,8 +646,11 @@ def _check_value(
         raise where.error(
             name, f"{what} {value!r} is above what deepqlearn accepts ({accepted})", f"lower it to {hi:g}"
         )
-    if name == "other_agents" and ruleset == "v1" and value != 0:
-        raise where.error(name, f"{what} {value!r}: the v1 engine has no other agents", 'remove it or use ruleset "v2"')
+    if name == "other_agents":
+        try:
+            check_other_agents(ruleset, value)
+        except ConfigError:
+            raise where.error(name, f"{what} {value!r}: {V1_NO_AGENTS}", 'remove it or use ruleset "v2"') from None
     return value
 
 
@@ -763,8 +788,7 @@ def _check_keys(table: Mapping[str, Any], section: str, src: str) -> None:
 
 
 def _hint(key: str, valid: tuple[str, ...] | list[str]) -> str:
-    close = difflib.get_close_matches(key, list(valid), n=1, cutoff=0.4)
-    return f"; did you mean '{close[0]}'?" if close else ""
+    return did_you_mean(key, valid)
 
 
 def _one_line(text: str) -> str:

@@ -112,9 +112,7 @@ def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: 
     odd = by_id["dt-blackvitriol-rl-v00"]  # fc:1:softmax → neurons_0 = 1, activation_0 'linear': beyond paper.toml
     configs = {sub.id: crowd_data.train_config(sub) for sub in (v1, odd)}
     storages = open_storage(str(tmp_path / "j.log"), "r")
-    spec = replay_spec(
-        "r", storage="", workers=1, n_trials=2, params=[crowd.crowd_params(c) for c in configs.values()]
-    )
+    spec = replay_spec("r", storage="", workers=1, n_trials=2, params=[crowd.crowd_params(c) for c in configs.values()])
     assert spec.study.pruner == "none" and spec.evaluation.final_protocol == "v2-official"  # the space's ruleset
     assert spec.dimensions["neurons"].low == 1 and "linear" in spec.dimensions["activation"].choices
     driver = Driver(spec, storages)

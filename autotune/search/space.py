@@ -23,7 +23,14 @@ from autotune import TrainConfig
 from autotune.convnet import spec as netspec
 from autotune.search.ladder import cap_start, relative_schedule
 from autotune.search.spec import (
-    _FIELD_OF, FRACTIONS, LAYOUT, Dimension, SpecError, StudySpec, build_config, one_minus,
+    _FIELD_OF,
+    FRACTIONS,
+    LAYOUT,
+    Dimension,
+    SpecError,
+    StudySpec,
+    build_config,
+    one_minus,
 )  # fmt: skip
 from sim import fields
 

@@ -71,12 +71,11 @@ _FIELD_OF = {
 PARAMS: tuple[str, ...] = (
     *(f.name for f in fields.FIELDS if f.name != "gamma" and f.group != "site"),
     "one_minus_gamma",
-    "method",
     *FRACTIONS,
     *LAYOUT,
 )
 """Every name a [space] table may search (the shared search-space vocabulary): every setting of ``sim.fields`` but
-the ruleset ([study]) and gamma (searched as ``one_minus_gamma``), and the layout."""
+the ruleset ([study]) and gamma (searched as ``one_minus_gamma``), the ladder's fractions, and the layout."""
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TRAIN_FIELDS = tuple(f.name for f in dataclasses.fields(TrainConfig))
@@ -592,7 +591,7 @@ def param_bounds(name: str) -> tuple[str, float, float | None]:
         return "int", 0, None
     if name == "neurons":
         return "int", 1, None
-    if name in ("activation", "method"):
+    if name == "activation":
         return "str", 0, None
     if name in FRACTIONS:
         return "float", 0.0, 10.0
@@ -613,14 +612,10 @@ def _check_value(
         except FieldValueError as exc:
             raise where.error(name, f"{what} {exc.problem}", "fix the choice") from None
     if kind == "str":
-        example = '"sgd", "adagrad"' if name == "method" else '"relu"'
         if not isinstance(value, str):
-            raise where.error(name, f"{what} {value!r} is not a string", f"use names like {example}")
+            raise where.error(name, f"{what} {value!r} is not a string", 'use activation names like "relu"')
         try:
-            if name == "method":
-                TrainConfig(ruleset=ruleset, method=value)
-            else:
-                TrainConfig(ruleset=ruleset, layers=f"fc:4:{value}")
+            TrainConfig(ruleset=ruleset, layers=f"fc:4:{value}")
         except ConfigError as exc:
             raise where.error(
                 name, f"{what} {value!r} is not accepted ({_one_line(str(exc))})", "fix the choice"

@@ -171,6 +171,11 @@ def test_encode_crowd_names() -> None:
     v1 = space.encode(spec, gsurma.replace(ruleset="v1", otherAgents=0))
     assert "other_agents" not in v1  # v1 has no other agents: no parameter
     assert space.active(svm)["n_layers"] == 3 and "neurons_3" in svm and "neurons_3" not in space.active(svm)
+    assert space.unencodable(gsurma) == []
+    assert space.unencodable(gsurma.replace(layers="fc:10:relu|svm:10|lrn")) == [
+        "hidden layer 1 'svm:10' is not fc:N[:activation]; the layout space only has plain fc layers",
+        "hidden layer 2 'lrn' is not fc:N[:activation]; the layout space only has plain fc layers",
+    ]  # what encode changes or leaves out: the crowd prior skips such settings
     wide = space.encode(spec, gsurma.replace(lanesSide=50, layers="fc:10"))
     assert wide["activation_0"] == "linear"
     assert space.outside(spec, wide) == ["lanes_side: 50 outside [0, 10]", "activation_0: 'linear' not in "

@@ -363,11 +363,11 @@ class Driver:
             n = 0
             ladder = Ladder(self.spec.ladder) if self.spec.ladder else None
             for w in self.warm_configs:
-                try:
-                    params = space.encode(self.spec, w.config)
-                except ConfigError as exc:
-                    self.warm_notes.append(f"{w.source}: skipped ({exc})")
+                lost = space.unencodable(w.config)
+                if lost:  # the layout would not train this setting
+                    self.warm_notes.append(f"{w.source}: skipped ({'; '.join(lost)})")
                     continue
+                params = space.encode(self.spec, w.config)
                 params, clipped = clip_params(self.spec, params)
                 user: dict[str, Any] = {WARM_ATTR: w.source}
                 if clipped:

@@ -19,7 +19,7 @@ import re
 from collections.abc import Mapping
 from typing import Any, Protocol
 
-from autotune import TrainConfig
+from autotune import TrainConfig, format_hidden
 from autotune.convnet import spec as netspec
 from autotune.search.ladder import cap_start, relative_schedule
 from autotune.search.spec import (
@@ -34,7 +34,10 @@ from autotune.search.spec import (
 )  # fmt: skip
 from sim import fields
 
-__all__ = ["DEFAULT_SPACE", "PAPER_SPACE", "Trial", "sample", "dimensions", "to_config", "encode", "active", "outside"]
+__all__ = [
+    "DEFAULT_SPACE", "PAPER_SPACE", "Trial", "sample", "dimensions", "to_config", "encode", "active", "unencodable",
+    "outside",
+]  # fmt: skip
 
 
 class Trial(Protocol):
@@ -106,6 +109,9 @@ PAPER_SPACE: dict[str, dict[str, Any]] = {
     "activation": DEFAULT_SPACE["activation"],
 }  # fmt: skip
 """``study_configs/paper.toml``'s [space] (a test keeps the two equal)."""
+
+
+_FC_RE = re.compile(r"^fc:(\d+)(?::([A-Za-z]+))?$")
 
 
 def sample(trial: Trial, spec: StudySpec) -> dict[str, Any]:
@@ -227,6 +233,19 @@ def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
             params[f"neurons_{i}"] = _first(dims["neurons"])
             params[f"activation_{i}"] = _first(dims["activation"])
     return params
+
+
+def unencodable(config: TrainConfig) -> list[str]:
+    """One line per hidden layer the layout cannot express (not a plain ``fc:N[:activation]``): what ``encode``
+    changes (svm → activation 'svm') or leaves out (lrn, dropout); empty when the params are the config."""
+    problems = []
+    for i, layer in enumerate(config.layers):
+        text = format_hidden([layer])
+        if _FC_RE.match(text) is None:
+            problems.append(
+                f"hidden layer {i} '{text}' is not fc:N[:activation]; the layout space only has plain fc layers"
+            )
+    return problems
 
 
 def active(params: Mapping[str, Any]) -> dict[str, Any]:

@@ -71,7 +71,7 @@ def replay_tasks(
         sub = rows[0]
         config = cd.train_config(sub)
         if max_iterations is not None and config.train_iterations > max_iterations:
-            config = dataclasses.replace(config, train_iterations=max_iterations)
+            config = config.replace(train_iterations=max_iterations)
         mapping = config.to_mapping()
         tasks += [ReplayTask(sub.id, k, replay_seed(sub.id, k), mapping) for k in range(seeds)]
     return tasks

@@ -48,7 +48,7 @@ ENGINES = ("v1", "v2")
 FRAMES_PER_ITERATION = 30  # train.js: totalFrames = 30·trainIterations
 
 
-class CrowdDataError(ValueError):
+class CrowdDataError(ConfigError):
     """Bad crowd data: the message names the file, row (1 = first data row), id and column."""
 
 

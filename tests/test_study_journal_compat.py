@@ -1,10 +1,13 @@
 """Study journals already written still open and read the same.
 
-``tests/data/study_journal/`` was written by the code of commit 455ea62 (before the search core and
-the commands were reorganised): ``autotune launch study_configs/smoke.toml`` (4 trials: 3 complete,
-1 pruned, nets as artifacts), then ``autotune crowd import`` and ``autotune crowd replay --enqueue-only``
-(2 settings × 2 seeds, WAITING) into the same journal. ``expected.json.gz`` holds what that code printed
-for ``status``/``best`` and read as trial records and report data; today's code must read the same.
+``tests/data/study_journal/journal.log.gz`` was written by the code of commit 455ea62 (before the search
+core and the commands were reorganised): ``autotune launch study_configs/smoke.toml`` (4 trials: 3
+complete, 1 pruned, nets as artifacts), then ``autotune crowd import`` and ``autotune crowd replay
+--enqueue-only`` (2 settings × 2 seeds, WAITING) into the same journal. ``expected.json.gz`` holds what
+the code before the reorganisation (main at 2d3a45e) printed for ``status``/``best`` and read as trial
+records and report data from it — the same as 455ea62's own reading but for what issues 14 and 15 added
+on purpose (the seed-race line of ``best``, the provenance of every report point) —; today's code must
+read the same.
 """
 
 from __future__ import annotations
@@ -21,8 +24,8 @@ from typing import Any
 import pytest
 
 from autotune import cli
-from autotune.search.records import trial_record
-from autotune.search.storage import load_study, open_storage
+from autotune.search.records import read_study, trial_record
+from autotune.search.storage import open_storage
 from dashboards import extract
 from tests.conftest import ROOT, load_json
 
@@ -60,15 +63,15 @@ def test_status_and_best_print_the_same(journal: str, command: str) -> None:
 @pytest.mark.parametrize("name", STUDIES)
 def test_trial_records_read_the_same(journal: str, name: str) -> None:
     storages = open_storage(journal, "smoke", heartbeat=False, create=False)
-    study = load_study(storages, name)
-    assert [trial_record(storages, name, t.number) for t in study.get_trials()] == EXPECTED["records"][name]
+    study = read_study(storages, name)
+    assert [trial_record(storages, name, t.number) for t in study.trials] == EXPECTED["records"][name]
 
 
 @pytest.mark.parametrize("name", STUDIES)
 def test_report_data_reads_the_same(journal: str, name: str) -> None:
-    study = load_study(open_storage(journal, "smoke", heartbeat=False, create=False), name)
+    study = read_study(open_storage(journal, "smoke", heartbeat=False, create=False), name)
     data = json.loads(json.dumps(dataclasses.asdict(extract.study_data(study)), default=str))
-    data["direction"] = study.direction.name
+    data["direction"] = study.direction
     assert data == EXPECTED["study_data"][name]
 
 
@@ -78,3 +81,29 @@ def test_the_fixture_has_every_kind_of_trial() -> None:
     assert states == {"smoke": ["COMPLETE", "PRUNED"], "crowd": ["COMPLETE"], "crowd-replay": ["WAITING"]}
     assert sum(1 for r in EXPECTED["records"]["smoke"] if "artifact_net_json" in r) == 3
     assert Path(FIXTURE / "artifacts").is_dir() and len(list((FIXTURE / "artifacts").iterdir())) == 6
+
+
+def _types(value: Any) -> set[str]:
+    """The modules of every object inside ``value`` (dataclasses, mappings and sequences walked)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        inner = [getattr(value, f.name) for f in dataclasses.fields(value)]
+    elif isinstance(value, dict):
+        inner = [*value.keys(), *value.values()]
+    elif isinstance(value, (list, tuple)):
+        inner = list(value)
+    else:
+        inner = []
+    return {type(value).__module__}.union(*(_types(v) for v in inner))
+
+
+def test_the_read_api_hands_out_plain_data(journal: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """What ``dashboards`` and the commands get: records of builtins, datetimes and records — no Optuna object."""
+    from autotune.search.records import find_study
+
+    for name in STUDIES:
+        study = read_study(open_storage(journal, "smoke", heartbeat=False, create=False), name)
+        assert not [m for m in _types(study) if m.split(".")[0] in ("optuna", "optuna_dashboard")]
+    assert read_study(open_storage(journal, "smoke", heartbeat=False), "smoke").best_number == 3
+    assert find_study(journal, "crowd") is not None and find_study(journal, "nope") is None
+    monkeypatch.chdir(tmp_path)
+    assert find_study("", "nope") is None and not (tmp_path / "runs").exists()  # finding creates nothing

@@ -52,13 +52,13 @@ from autotune.convnet.spec import (
     net_input_size,
 )
 from sim import fields
-from sim.config import input_size
+from sim.config import ConfigError, input_size
 
 SUPPORTED_TYPES = ("input", "fc", "relu", "tanh", "sigmoid", "maxout", "dropout", "svm", "softmax", "regression", "lrn")
 
 
-class NetFormatError(ValueError):
-    """A net or settings file is unusable; the one-line message names the field."""
+class NetFormatError(ConfigError):
+    """A net or settings file is unusable; the one-line message names the field (bad input: exit 2 in the CLI)."""
 
 
 # --------------------------------------------------------------------------------------------

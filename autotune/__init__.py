@@ -2,8 +2,9 @@
 
 Layers, bottom to top: ``sim`` (the engines) → ``autotune.convnet`` (convnetjs networks) →
 ``autotune.learner`` (deepqlearn: training, exact evaluation) → ``autotune.search`` (Optuna/Ray
-studies) → ``autotune.cli``. Attributes resolve on first use so that code needing only the net
-format (e.g. ``dashboards``) never imports torch.
+studies) → ``dashboards`` (reports, the crowd) → ``autotune.commands`` (one module per subcommand)
+→ ``autotune.cli``. Attributes resolve on first use so that code needing only the net format (e.g.
+``dashboards``) never imports torch.
 
 No exported name is also the name of a submodule: importing ``autotune.train`` (the
 ``python -m autotune.train`` shim) sets the package attribute ``train`` to that module, so the

@@ -1,8 +1,11 @@
 """``autotune <subcommand>``: the console script. Command modules parse and print; the work is library code.
 
-Each subcommand lives in its own module exposing ``add_parser(subparsers) -> None`` (adds its
-subparser with help text and ``func=run``) and ``run(args) -> int``. Adding a subcommand is one
-line in ``SUBCOMMANDS``. Bad arguments print one line ``error: …`` on stderr and exit with 2.
+Each subcommand lives in its own module under ``autotune/commands/`` exposing
+``add_parser(subparsers) -> None`` (adds its subparser with help text and ``func=run``) and
+``run(args) -> int``. Adding a subcommand is one line in ``SUBCOMMANDS``. Bad input is one error
+type: argparse's complaints and every ``ConfigError`` a command raises (spec, storage, net file,
+crowd data, filter, record, …: all subclasses) become one line ``error: …`` on stderr and exit
+status 2 here, in ``main`` — and nowhere else.
 """
 
 from __future__ import annotations
@@ -13,15 +16,17 @@ import sys
 from typing import NoReturn
 
 from autotune.cliutil import EXIT_USAGE, fail
+from sim.config import ConfigError
 
 # one module per subcommand, in the order ``autotune --help`` lists them
 SUBCOMMANDS: tuple[str, ...] = (
     "autotune.commands.train",
     "autotune.commands.evaluate",
-    "autotune.search.launch_cli",
-    "autotune.search.inspect_cli",
-    "dashboards.crowd_cli",
-    "dashboards.replay_cli",
+    "autotune.commands.launch",
+    "autotune.commands.inspect",  # status, best, dashboard
+    "autotune.commands.crowd",
+    "autotune.commands.compare",
+    "autotune.commands.replay",
 )
 
 
@@ -46,7 +51,8 @@ def main(argv: list[str] | None = None, *, owns_process: bool | None = None) -> 
 
     As the process's owner (default: when ``argv`` is None, i.e. run as the console script) it
     first sets the process-wide settings (``configure_process``); an in-process call (a test, a
-    notebook) leaves its caller's process as it is.
+    notebook) leaves its caller's process as it is. A ``ConfigError`` from the command is printed
+    as one line (its first) and returns 2.
     """
     try:
         args = build_parser().parse_args(argv)
@@ -56,7 +62,10 @@ def main(argv: list[str] | None = None, *, owns_process: bool | None = None) -> 
         from autotune.runtime import configure_process
 
         configure_process()
-    return int(args.func(args))
+    try:
+        return int(args.func(args))
+    except ConfigError as exc:
+        return fail((str(exc).splitlines() or [type(exc).__name__])[0])
 
 
 if __name__ == "__main__":

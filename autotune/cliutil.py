@@ -1,8 +1,9 @@
 """What every ``autotune`` subcommand spells the same way: the bad-input exit and the study-storage options.
 
-Bad input (house style): one line ``error: <what>: <problem>`` on stderr, exit status 2, no traceback.
-``--storage`` is '' for the study's embedded ``runs/<study>/journal.log``; ``--artifacts`` None for the
-artifact store beside the storage. Imports nothing heavy: the dashboards' CLIs use it too.
+Bad input (house style): one line ``error: <what>: <problem>`` on stderr, exit status 2, no traceback —
+printed by ``autotune.cli.main`` (``fail``) for every ``ConfigError`` a command raises. ``--storage`` is ''
+for the study's embedded ``runs/<study>/journal.log``; ``--artifacts`` None for the artifact store beside
+the storage. Imports nothing heavy (stdlib only).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The crowd as an Optuna study: one COMPLETE trial per scored submission, under the search's parameter names.
+"""The crowd as a study: one COMPLETE trial per scored submission, under the search's parameter names.
 
 So that optuna-dashboard and the report read the crowd exactly like an automated study, each
 submission's settings are encoded by the search's one encoder (``space.encode``) in the paper's
@@ -7,7 +7,9 @@ space (``crowd_spec``: ``lanes_side`` … ``one_minus_gamma`` …, ``n_layers``,
 is the self-reported score and its provenance goes into user attributes. Unscored submissions and
 the two whose settings our learner refuses are skipped (Optuna needs a value for a COMPLETE trial;
 a FAIL trial would read as "the setting crashed"), and the import says how many and why.
-Importing again adds only the submissions not yet in the study.
+Importing again adds only the submissions not yet in the study. The trials are plain records
+(``autotune.search.records``) written through ``autotune.search.enqueue.add_finished``: Optuna stays
+inside the search. ``score_own_nets`` scores the human nets with their own weights (exact evaluator).
 """
 
 from __future__ import annotations
@@ -16,16 +18,17 @@ import dataclasses
 import datetime as dt
 import functools
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-import optuna
-from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
-
+from autotune.convnet import spec
 from autotune.learner.config import TrainConfig
-from autotune.search import space
+from autotune.search import keys, space
+from autotune.search.enqueue import add_finished
+from autotune.search.records import Distribution, StudyRecord, TrialRecord, read_study_if_present
 from autotune.search.space import DEFAULT_SPACE
 from autotune.search.spec import StudySpec, param_bounds, parse_spec
+from autotune.search.storage import Storages
 from dashboards import crowd_data as cd
 from dashboards import provenance as pv
 from sim.protocols import OFFICIAL
@@ -35,7 +38,6 @@ __all__ = [
     "REPLAY_STUDY",
     "CROWD_METRIC",
     "REPLAY_METRIC",
-    "set_metric_name",
     "own_net_attrs",
     "ACTIVATION_CHOICES",
     "ImportResult",
@@ -45,12 +47,12 @@ __all__ = [
     "crowd_trials",
     "import_crowd",
     "crowd_study",
+    "score_own_nets",
     "submission_order",
 ]
 
 CROWD_STUDY = "crowd"
 REPLAY_STUDY = "crowd-replay"
-OWN_NET_SCORES = "own_net_scores"  # study user attr: {crowd id: {score, protocol, mean, std, runs}}
 CROWD_METRIC = (
     "self-reported score [mph]: claimed by the author, not measured (engine: engine_version; kind: score_kind; "
     "measured own-weight score, where there is one: own_net_score)"
@@ -75,7 +77,7 @@ def crowd_params(config: TrainConfig) -> dict[str, Any]:
     return space.active(space.encode(crowd_spec(), config))
 
 
-def distributions(all_params: Iterable[dict[str, Any]]) -> dict[str, BaseDistribution]:
+def distributions(all_params: Iterable[dict[str, Any]]) -> dict[str, Distribution]:
     """One distribution per parameter name, covering every value given.
 
     The range is the setting's own in ``sim.fields`` (``spec.param_bounds``), so it holds every valid
@@ -88,11 +90,11 @@ def distributions(all_params: Iterable[dict[str, Any]]) -> dict[str, BaseDistrib
         for name, value in params.items():
             values.setdefault(name, []).append(value)
     dims = crowd_spec().dimensions
-    out: dict[str, BaseDistribution] = {}
+    out: dict[str, Distribution] = {}
     for name, vals in values.items():
         base = name.rsplit("_", 1)[0] if name.startswith(("neurons_", "activation_")) else name
         if base == "activation":
-            out[name] = CategoricalDistribution(ACTIVATION_CHOICES)
+            out[name] = Distribution("categorical", choices=ACTIVATION_CHOICES)
             continue
         kind, low, high = param_bounds(base)
         paper = dims[base]
@@ -101,9 +103,9 @@ def distributions(all_params: Iterable[dict[str, Any]]) -> dict[str, BaseDistrib
         low = paper.low if log and low <= 0 else low
         low, high = min(low, *vals), max(paper.high if high is None else high, *vals)
         if kind == "int":
-            out[name] = IntDistribution(int(low), int(high), log=log)
+            out[name] = Distribution("int", int(low), int(high), log, 1)
         else:
-            out[name] = FloatDistribution(float(low), float(high), log=log)
+            out[name] = Distribution("float", float(low), float(high), log)
     return out
 
 
@@ -124,8 +126,8 @@ class ImportResult:
 
 def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | None) -> dict[str, Any]:
     attrs: dict[str, Any] = {
-        "source": "crowd",
-        "crowd_id": sub.id,
+        keys.SOURCE: keys.SOURCE_CROWD,
+        keys.CROWD_ID: sub.id,
         "id": sub.id,
         "repo": sub.repo,
         "path": sub.path,
@@ -137,30 +139,30 @@ def _user_attrs(sub: cd.Submission, config: TrainConfig, own: dict[str, Any] | N
         f"({pv.ENGINE_LABEL[sub.engine_version]}, {pv.agents_label(sub.engine_version, sub.other_agents)})",
         "config_hash": sub.config_hash,
         "score_source": sub.score_source,
-        "engine_version": sub.engine_version,
+        keys.ENGINE_VERSION: sub.engine_version,
         "trainer_method": sub.settings.method,
         "hidden_layers": sub.hidden_layers,
         "is_default_template": sub.is_default_template,
         "same_config_as": sub.same_config_as,
         "has_weights": sub.has_weights,
         "in_nets_dir": sub.in_nets_dir,
-        "config": config.to_mapping(),
-        "settings": config.to_deepqlearn(),
-        "input_size": config.net_inputs,
-        "num_states": config.num_states,
-        "param_count": config.param_count,
-        "frames_simulated": cd.frames_estimate(sub) or cd.FRAMES_PER_ITERATION * config.train_iterations,
-        "official_protocol": OFFICIAL[sub.engine_version],
+        keys.CONFIG: config.to_mapping(),
+        keys.SETTINGS: config.to_deepqlearn(),
+        keys.INPUT_SIZE: config.net_inputs,
+        keys.NUM_STATES: config.num_states,
+        keys.PARAM_COUNT: config.param_count,
+        keys.FRAMES_SIMULATED: cd.frames_estimate(sub) or cd.FRAMES_PER_ITERATION * config.train_iterations,
+        keys.OFFICIAL_PROTOCOL: OFFICIAL[sub.engine_version],
     }
     if own is not None:
-        attrs["own_net_score"] = own["score"]
-        attrs["own_net_protocol"] = own.get("protocol")
+        attrs[keys.OWN_NET_SCORE] = own["score"]
+        attrs[keys.OWN_NET_PROTOCOL] = own.get("protocol")
     return attrs
 
 
 def crowd_trials(
     subs: Sequence[cd.Submission] | None = None, own_net_scores: dict[str, dict[str, Any]] | None = None
-) -> tuple[list[optuna.trial.FrozenTrial], dict[str, str]]:
+) -> tuple[list[TrialRecord], dict[str, str]]:
     """COMPLETE trials for the scored submissions in submission order, and {id: reason} for those skipped."""
     subs = cd.load_submissions() if subs is None else subs
     kept: list[tuple[cd.Submission, TrainConfig, dict[str, Any]]] = []
@@ -178,64 +180,49 @@ def crowd_trials(
     dists = distributions(p for _s, _c, p in kept)
     trials = []
     now = dt.datetime.now()  # Optuna needs a start time; undated rows get the import's (version_date stays None)
-    for sub, config, params in kept:
+    for number, (sub, config, params) in enumerate(kept):
         when = dt.datetime.combine(sub.version_date, dt.time()) if sub.version_date else now
         trials.append(
-            optuna.trial.FrozenTrial(
-                number=0,
-                state=optuna.trial.TrialState.COMPLETE,
+            TrialRecord(
+                number=number,
+                state="COMPLETE",
                 value=sub.reported_score_mph,
-                datetime_start=when,
-                datetime_complete=when,
                 params=params,
                 distributions={k: dists[k] for k in params},
                 user_attrs=_user_attrs(sub, config, (own_net_scores or {}).get(sub.id)),
-                system_attrs={},
-                intermediate_values={},
-                trial_id=0,
+                datetime_start=when,
+                datetime_complete=when,
             )
         )
     return trials, skipped
 
 
 def import_crowd(
-    storage: str | optuna.storages.BaseStorage | None,
+    storages: Storages | None,
     study_name: str = CROWD_STUDY,
     own_net_scores: dict[str, dict[str, Any]] | None = None,
-) -> tuple[optuna.Study, ImportResult]:
+) -> tuple[StudyRecord, ImportResult]:
     """Write the crowd into ``study_name`` (created if absent, direction maximize); adds only missing submissions.
 
-    ``own_net_scores`` ({id: {score, protocol, …}}; default: the shipped ``measured.load_own_nets()``)
-    are merged into the study's ``own_net_scores`` user attribute and set on the trials created now.
-    The study's metric name says that its values are claims.
+    ``storages`` None: a study in memory. ``own_net_scores`` ({id: {score, protocol, …}}; default: the
+    shipped ``measured.load_own_nets()``) are merged into the study's ``own_net_scores`` user attribute
+    and set on the trials created now. The study's metric name says that its values are claims.
+    Returns the study as it stands afterwards and what the import did.
     """
     if own_net_scores is None:
         from dashboards import measured
 
         own_net_scores = own_net_attrs(measured.load_own_nets())
-    study = optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
-    if study.direction != optuna.study.StudyDirection.MAXIMIZE:
-        raise ValueError(f"study {study_name!r} exists and minimizes; the crowd's scores are maximized")
-    present = {t.user_attrs.get("crowd_id") for t in study.get_trials(deepcopy=False)}
+    before = read_study_if_present(storages, study_name) if storages is not None else None
+    present = {t.user_attrs.get(keys.CROWD_ID) for t in before.trials} if before is not None else set()
     trials, skipped = crowd_trials(own_net_scores=own_net_scores)
-    new = [t for t in trials if t.user_attrs["crowd_id"] not in present]
-    study.add_trials(new)
-    study.set_user_attr("source", "crowd")
-    set_metric_name(study, CROWD_METRIC)
-    study.set_user_attr("skipped", skipped)
+    new = [t for t in trials if t.user_attrs[keys.CROWD_ID] not in present]
+    attrs: dict[str, Any] = {keys.SOURCE: keys.SOURCE_CROWD, keys.SKIPPED: skipped}
     if own_net_scores:
-        merged = {**study.user_attrs.get(OWN_NET_SCORES, {}), **own_net_scores}
-        study.set_user_attr(OWN_NET_SCORES, merged)
+        stored = before.user_attrs.get(keys.OWN_NET_SCORES, {}) if before is not None else {}
+        attrs[keys.OWN_NET_SCORES] = {**stored, **own_net_scores}
+    study = add_finished(storages, study_name, new, attrs, metric_name=CROWD_METRIC)
     return study, ImportResult(study_name, len(new), len(trials) - len(new), skipped)
-
-
-def set_metric_name(study: optuna.Study, name: str) -> None:
-    """Say what the study's value is (optuna-dashboard shows it); Optuna calls the API experimental."""
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        study.set_metric_names([name])
 
 
 def own_net_attrs(scores: Iterable[Any]) -> dict[str, dict[str, Any]]:
@@ -249,14 +236,24 @@ def own_net_attrs(scores: Iterable[Any]) -> dict[str, dict[str, Any]]:
     }  # fmt: skip
 
 
-def crowd_study(storage: str | optuna.storages.BaseStorage | None = None) -> optuna.Study:
-    """The crowd study from ``storage`` if it holds one named 'crowd', else built in memory from the package data."""
-    if storage is not None:
-        try:
-            return optuna.load_study(study_name=CROWD_STUDY, storage=storage)
-        except KeyError:
-            pass
-    return import_crowd(optuna.storages.InMemoryStorage(), CROWD_STUDY)[0]
+def crowd_study(storages: Storages | None = None) -> StudyRecord:
+    """The crowd study from ``storages`` if it holds one named 'crowd', else built in memory from the package data."""
+    stored = read_study_if_present(storages, CROWD_STUDY) if storages is not None else None
+    return stored if stored is not None else import_crowd(None, CROWD_STUDY)[0]
+
+
+def score_own_nets(progress: Callable[[str], None] | None = None) -> dict[str, dict[str, Any]]:
+    """The 25 human nets scored now with their own weights, engine and official protocol (exact evaluator).
+
+    ``progress`` gets one line per net. The same numbers as the shipped ``measured.load_own_nets()``.
+    """
+    from dashboards import measured
+
+    def show(s: measured.OwnNetScore) -> None:
+        if progress is not None:
+            progress(f"{s.crowd_id}: {s.score:.2f} mph ({s.protocol}, {s.seconds:.1f} s)")
+
+    return own_net_attrs(measured.score_own_nets(progress=show))
 
 
 def finite(value: Any) -> bool:

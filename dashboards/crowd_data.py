@@ -49,7 +49,7 @@ SCORE_CONFIDENCES = ("high", "medium", "low")
 FRAMES_PER_ITERATION = 30  # train.js: totalFrames = 30·trainIterations
 
 
-class CrowdDataError(ValueError):
+class CrowdDataError(ConfigError):
     """Bad crowd data: the message names the file, row (1 = first data row), id and column."""
 
 

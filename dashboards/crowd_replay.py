@@ -1,13 +1,23 @@
-"""Retrain crowd configurations into the shipped replay table (``data/crowd/replay.json``).
+"""The crowd's settings retrained by our learner: the shipped replay table, and the replay study.
 
-Each selected configuration (``measured.replay_selection``: the best-claimed ones of each engine,
-identical settings once) is trained by our learner from K seeds — the same training seeds and the
-same trial objective (``autotune.search.objective.run_trial``: full training, five quick scores,
-the official protocol of its engine) as ``autotune crowd replay``, so a row here and a trial there
-agree — in a pool of worker processes, without a study or Ray. Every finished (configuration,
-seed) is written at once to ``work_dir`` as one JSON file, so an interrupted run resumes where it
-stopped. ``max_iterations`` caps training (tests and rehearsals only; the table records the cap).
-Training imports torch; it is only imported here, inside the functions that train.
+Both train a crowd configuration from K seeds fixed by (crowd id, seed index) — ``replay_seed``, the
+same in the table and in every study — with the trial objective (``autotune.search.objective``:
+full training, five quick scores, the official protocol of its engine), so a row of the table and a
+trial of a replay study agree.
+
+* The replay table (``data/crowd/replay.json``, ``run_replay``): each selected configuration
+  (``measured.replay_selection``: the best-claimed ones of each engine, identical settings once) in
+  a pool of worker processes, without a study or Ray. Every finished (configuration, seed) is
+  written at once to ``work_dir`` as one JSON file, so an interrupted run resumes where it stopped.
+  ``max_iterations`` caps training (tests and rehearsals only; the table records the cap).
+* The replay study (``autotune crowd replay``): ``enqueue_replay`` enqueues each selected
+  submission's K seeds as trials (``autotune.search.enqueue``: its settings as the search's
+  parameters, its full config — the trainer method and l1 decay included — in the ``config`` user
+  attr), ``run_replay_study`` trains the waiting ones with the search driver on Ray workers, and
+  ``replay_table`` reads self-reported against replayed. Enqueuing again adds only missing (setting,
+  seed) pairs; running again runs only waiting trials.
+
+Training imports torch; it is only imported inside the functions that train.
 """
 
 from __future__ import annotations
@@ -20,14 +30,23 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from autotune.learner.config import TrainConfig
+from autotune.search import keys
+from autotune.search.driver import Progress, StudyCounts
+from autotune.search.enqueue import ConfigTrial, enqueue_configs, replay_spec, run_enqueued
+from autotune.search.records import StudyRecord, read_study_if_present
+from autotune.search.storage import Storages
+from dashboards import crowd, measured
 from dashboards import crowd_data as cd
-from dashboards import measured
 from sim.config import ConfigError
 from sim.protocols import OFFICIAL
 
-__all__ = ["ReplayTask", "replay_seed", "replay_tasks", "run_task", "run_replay"]
+__all__ = [
+    "ReplayTask", "replay_seed", "replay_tasks", "run_task", "run_replay", "ReplayRow", "enqueue_replay",
+    "run_replay_study", "replay_table", "format_replay_table",
+]  # fmt: skip
 
-REPORT_POINTS, QUICK_RUNS, QUICK_FRAMES = 5, 10, 2000  # as autotune crowd replay (crowd_cli.replay_spec)
+REPORT_POINTS, QUICK_RUNS, QUICK_FRAMES = 5, 10, 2000  # as autotune crowd replay (autotune.search.enqueue.replay_spec)
 
 
 def replay_seed(crowd_id: str, seed_index: int) -> int:
@@ -177,3 +196,117 @@ def run_replay(
             )
         )
     return measured.ReplayTable(command, seeds, max_iterations, tuple(entries))
+
+
+# -- the replay study (autotune crowd replay) ---------------------------------------------------------
+def enqueue_replay(
+    storages: Storages, study_name: str, subs: Sequence[cd.Submission], seeds: int
+) -> tuple[int, int, dict[str, str]]:
+    """Enqueue ``seeds`` trials per submission (skipping pairs already in the study); (added, present, skipped).
+
+    ``skipped``: {id: why} for submissions whose settings our learner refuses.
+    """
+    before = read_study_if_present(storages, study_name)
+    present = {
+        (t.user_attrs.get(keys.CROWD_ID), t.user_attrs.get(keys.SEED_INDEX))
+        for t in (before.trials if before is not None else ())
+        if t.user_attrs.get(keys.CROWD_ID) is not None
+    }
+    existing = 0
+    todo: list[ConfigTrial] = []
+    skipped: dict[str, str] = {}
+    for sub in subs:
+        try:
+            config = cd.train_config(sub)
+        except cd.CrowdDataError as exc:
+            skipped[sub.id] = str(exc)
+            continue
+        params = crowd.crowd_params(config)
+        for k in range(seeds):
+            if (sub.id, k) in present:
+                existing += 1
+                continue
+            provenance = {
+                keys.SOURCE: keys.SOURCE_CROWD_REPLAY,
+                keys.CROWD_ID: sub.id,
+                keys.SEED_INDEX: k,
+                keys.REPORTED_SCORE: sub.reported_score_mph,
+                keys.ENGINE_VERSION: sub.engine_version,
+            }
+            todo.append(ConfigTrial(params, config.to_mapping(), replay_seed(sub.id, k), provenance))
+    added = enqueue_configs(
+        storages, study_name, todo, {keys.SOURCE: keys.SOURCE_CROWD_REPLAY}, metric_name=crowd.REPLAY_METRIC
+    )
+    return added, existing, skipped
+
+
+def run_replay_study(
+    storages: Storages, study: StudyRecord, *, storage: str, workers: int, progress: Progress | None = None
+) -> StudyCounts:
+    """Train the replay study's waiting trials on ``workers`` Ray workers; the driver's final counts.
+
+    ``storage`` is the ``--storage`` the study was opened with (the spec records it). Nothing
+    waiting starts no Ray; Ctrl-C propagates once the running trials are failed (retryable).
+    """
+    spec = replay_spec(
+        study.name, storage=storage, workers=workers,
+        n_trials=sum(1 for t in study.trials if keys.RETRY_OF not in t.user_attrs),  # exactly the enqueued ones
+        params=[crowd.crowd_params(TrainConfig.from_mapping(t.user_attrs[keys.CONFIG]))
+                for t in study.trials if keys.CONFIG in t.user_attrs],
+        activations=crowd.ACTIVATION_CHOICES,
+    )  # fmt: skip
+    return run_enqueued(storages, spec, progress)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayRow:
+    """One replayed crowd setting: its self-reported score beside our seeds' official scores."""
+
+    crowd_id: str
+    engine: str
+    """Engine of the submission ('v1' or 'v2'); its official protocol scored the replay."""
+    reported: float | None
+    """Self-reported score [mph] (None: the submission reported none)."""
+    scores: tuple[float, ...]
+    """Official score of each complete seed [mph]."""
+    unfinished: int
+    """Seeds of this setting not complete (waiting, running, failed or pruned)."""
+
+    @property
+    def mean(self) -> float | None:
+        """Mean over the complete seeds [mph]."""
+        return sum(self.scores) / len(self.scores) if self.scores else None
+
+
+def replay_table(study: StudyRecord, subs: Sequence[cd.Submission]) -> list[ReplayRow]:
+    """Per submission of ``subs`` (in that order): the complete replay scores in ``study``."""
+    rows = []
+    for sub in subs:
+        mine = [t for t in study.trials if t.user_attrs.get(keys.CROWD_ID) == sub.id]
+        if not mine:
+            continue
+        latest = {}  # seed index -> its last attempt (a retry supersedes the failure it retries)
+        for t in mine:
+            latest[t.user_attrs.get(keys.SEED_INDEX)] = t
+        done = tuple(float(t.value) for t in latest.values() if t.state == "COMPLETE" and t.value is not None)
+        rows.append(ReplayRow(sub.id, sub.engine_version, sub.reported_score_mph, done, len(latest) - len(done)))
+    return rows
+
+
+def format_replay_table(rows: Sequence[ReplayRow]) -> str:
+    """The rows as an aligned text table (crowd id, engine, self-reported, replayed mean ± sd over seeds)."""
+
+    def num(x: float | None) -> str:
+        return "—" if x is None else f"{x:.2f}"
+
+    head = ("crowd id", "engine", "self-reported", "replayed mean", "sd", "seeds")
+    body = []
+    for r in rows:
+        sd = None
+        if len(r.scores) > 1:
+            m = r.mean or 0.0
+            sd = (sum((x - m) ** 2 for x in r.scores) / (len(r.scores) - 1)) ** 0.5
+        seeds = f"{len(r.scores)}" + (f" (+{r.unfinished} not complete)" if r.unfinished else "")
+        body.append((r.crowd_id, r.engine, num(r.reported), num(r.mean), num(sd), seeds))
+    widths = [max(len(row[i]) for row in (head, *body)) for i in range(len(head))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in (head, *body))

@@ -1,15 +1,16 @@
-"""Plot data extracted from Optuna studies (automated or crowd) and the shipped measurements, as plain values.
+"""Plot data extracted from studies (automated or crowd) and the shipped measurements, as plain values.
 
 Everything a report panel shows is computed here and tested as values; ``dashboards.figures``
 only draws it. A panel that cannot be computed (too few trials, a constant setting) gets an
 ``Empty`` with the reason, which the report prints instead of an empty figure.
 
-``study_data`` is the one place a study is read. Trials are read through the trial-record
-contract: the value is the official score (the crowd study: the self-reported score), the real
-settings are in the ``config`` user attribute (parameters, in sampling coordinates, are the
-fallback), and the compute spent is ``frames_simulated``. Every point carries what its score is
-(``dashboards.provenance``): engine, other agents, score kind and confidence; crowd rows take
-their configuration hash and repository from the packaged CSV by crowd id.
+``study_data`` is the one place a study is read — as plain records from ``autotune.search.records``
+(``read_study``; no Optuna object reaches the reports). Trials are read through the trial-record
+contract (``autotune.search.keys``): the value is the official score (the crowd study: the
+self-reported score), the real settings are in the ``config`` user attribute (parameters, in sampling
+coordinates, are the fallback), and the compute spent is ``frames_simulated``. Every point carries
+what its score is (``dashboards.provenance``): engine, other agents, score kind and confidence; crowd
+rows take their configuration hash and repository from the packaged CSV by crowd id.
 """
 
 from __future__ import annotations
@@ -17,12 +18,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-import optuna
 
+from autotune.search import keys
+from autotune.search.records import FINISHED_STATES, StudyRecord, TrialRecord
 from dashboards import provenance as pv
 
 __all__ = [
@@ -70,7 +72,6 @@ HYPERPARAMETERS = (
 LOG_AXES = frozenset({"learning_rate", "batch_size", "experience_size", "train_iterations"})
 FEATURES = (*(h for h in HYPERPARAMETERS if h != "other_agents"), "n_layers", "param_count", "engine", "other_agents")
 """Inputs of the importances: the stored config's settings, the net's size, the engine (v2 = 1) and other agents."""
-FINISHED = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED, optuna.trial.TrialState.FAIL)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -266,8 +267,8 @@ def _number(value: Any) -> float | None:
     return float(value)
 
 
-def _settings(trial: optuna.trial.FrozenTrial) -> dict[str, float]:
-    config = trial.user_attrs.get("config")
+def _settings(trial: TrialRecord) -> dict[str, float]:
+    config = trial.user_attrs.get(keys.CONFIG)
     source: dict[str, Any] = dict(config) if isinstance(config, dict) else {}
     for name in HYPERPARAMETERS:
         if name not in source and name in trial.params:
@@ -284,8 +285,8 @@ def _settings(trial: optuna.trial.FrozenTrial) -> dict[str, float]:
     return out
 
 
-def _n_layers(trial: optuna.trial.FrozenTrial) -> int | None:
-    config = trial.user_attrs.get("config")
+def _n_layers(trial: TrialRecord) -> int | None:
+    config = trial.user_attrs.get(keys.CONFIG)
     if isinstance(config, dict) and isinstance(config.get("layers"), str):
         return sum(1 for part in config["layers"].split("|") if part and not part.startswith("lrn"))
     if "n_layers" in trial.params:
@@ -293,10 +294,10 @@ def _n_layers(trial: optuna.trial.FrozenTrial) -> int | None:
     return None
 
 
-def _engine(trial: optuna.trial.FrozenTrial) -> str | None:
-    config = trial.user_attrs.get("config")
+def _engine(trial: TrialRecord) -> str | None:
+    config = trial.user_attrs.get(keys.CONFIG)
     engine = config.get("ruleset") if isinstance(config, dict) else None
-    engine = engine or trial.user_attrs.get("engine_version")
+    engine = engine or trial.user_attrs.get(keys.ENGINE_VERSION)
     return engine if engine in pv.ENGINES else None
 
 
@@ -306,54 +307,55 @@ def _crowd_rows() -> dict[str, Any]:
     return {s.id: s for s in crowd_data.load_submissions()}
 
 
-def _kind(source: str, attrs: dict[str, Any], row: Any) -> tuple[str, str] | None:
+def _kind(source: str, attrs: Mapping[str, Any], row: Any) -> tuple[str, str] | None:
     """(score kind, confidence) of a trial's value; None when a crowd trial does not say what its score is."""
-    if source == "crowd":
+    if source == keys.SOURCE_CROWD:
         kind = row.score_kind if row is not None else attrs.get("score_kind")
         confidence = row.score_confidence if row is not None else attrs.get("score_confidence")
         if kind not in pv.KIND_LABEL or pv.is_measured(kind):
             return None
         return kind, str(confidence or "not recorded")
-    if source == "crowd-replay":
+    if source == keys.SOURCE_CROWD_REPLAY:
         return pv.REPLAYED, "exact"
     return pv.SEARCHED, "exact"
 
 
-def study_data(study: optuna.Study) -> StudyData:
+def study_data(study: StudyRecord) -> StudyData:
     """The finished trials of ``study`` (COMPLETE, PRUNED, FAIL) as ``TrialPoint``s, in trial order."""
-    if study.direction != optuna.study.StudyDirection.MAXIMIZE:
-        raise ValueError(f"study {study.study_name!r} minimizes; reports compare scores (maximized)")
-    all_trials = study.get_trials(deepcopy=False)
-    sources = {t.user_attrs.get("source") for t in all_trials}
-    source = str(study.user_attrs.get("source") or (sources.pop() if len(sources) == 1 else "autotune") or "autotune")
-    crowd_rows = _crowd_rows() if source in ("crowd", "crowd-replay") else {}
+    if study.direction != "MAXIMIZE":
+        raise ValueError(f"study {study.name!r} minimizes; reports compare scores (maximized)")
+    all_trials = study.trials
+    sources = {t.user_attrs.get(keys.SOURCE) for t in all_trials}
+    auto = keys.SOURCE_AUTOTUNE
+    source = str(study.user_attrs.get(keys.SOURCE) or (sources.pop() if len(sources) == 1 else auto) or auto)
+    crowd_rows = _crowd_rows() if source in (keys.SOURCE_CROWD, keys.SOURCE_CROWD_REPLAY) else {}
     points = []
     skipped: dict[int, str] = {}
     for t in all_trials:
-        if t.state not in FINISHED:
+        if t.state not in FINISHED_STATES:
             continue
         attrs = t.user_attrs
         engine = _engine(t)
         if engine is None:
             skipped[t.number] = "no engine recorded (user attr config.ruleset)"
             continue
-        value = _number(t.value) if t.state == optuna.trial.TrialState.COMPLETE else None
-        crowd_id = attrs.get("crowd_id")
+        value = _number(t.value) if t.state == "COMPLETE" else None
+        crowd_id = attrs.get(keys.CROWD_ID)
         row = crowd_rows.get(crowd_id) if crowd_id else None
-        config = attrs.get("config")
+        config = attrs.get(keys.CONFIG)
         agents = config.get("other_agents") if isinstance(config, dict) else attrs.get("other_agents")
         kind_confidence = _kind(source, attrs, row)
         if kind_confidence is None:
             skipped[t.number] = "a crowd trial without a score kind (user attr score_kind)"
             continue
         kind, confidence = kind_confidence
-        pc = _number(attrs.get("param_count"))
-        frames = _number(attrs.get("frames_simulated"))
+        pc = _number(attrs.get(keys.PARAM_COUNT))
+        frames = _number(attrs.get(keys.FRAMES_SIMULATED))
         key = row.config_hash if row is not None else json.dumps(config, sort_keys=True) if config else str(t.params)
         points.append(
             TrialPoint(
                 number=t.number,
-                state=t.state.name,
+                state=t.state,
                 value=value,
                 label=str(crowd_id) if crowd_id else f"trial {t.number}",
                 settings=_settings(t),
@@ -371,7 +373,7 @@ def study_data(study: optuna.Study) -> StudyData:
                 repo=row.repo if row is not None else attrs.get("repo"),
             )
         )
-    return StudyData(study.study_name, source, tuple(points), dict(study.user_attrs), skipped)
+    return StudyData(study.name, source, tuple(points), dict(study.user_attrs), skipped)
 
 
 def points(trials: Sequence[TrialPoint], x: Sequence[float]) -> Points:

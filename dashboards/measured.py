@@ -222,7 +222,7 @@ class ReplayRun:
     """One training seed of a replayed configuration."""
 
     seed_index: int
-    """k: the k-th seed of the configuration (``crowd_cli.replay_seed`` gives the training seed)."""
+    """k: the k-th seed of the configuration (``crowd_replay.replay_seed`` gives the training seed)."""
     seed: int
     """Training seed."""
     state: str

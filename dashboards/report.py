@@ -4,7 +4,8 @@
 ``dashboards.headline``; the measured crowd from the package data, ``dashboards.measured``) and
 draws it (``dashboards.figures``); ``write_html`` writes one file with plotly.js inlined, so it
 opens without network access; ``attach_to_dashboard`` stores the same figures and a markdown
-note in the study for optuna-dashboard. A panel without data is an explained note, never an
+note in the study for optuna-dashboard (through ``autotune.search.dashboard``). The studies are
+plain records (``autotune.search.records``). A panel without data is an explained note, never an
 empty figure. Every score shown names its engine and kind (``dashboards.provenance``); the page
 has an other-agents filter that hides the points of unticked agent counts in every figure.
 """
@@ -19,10 +20,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import optuna
 import plotly.graph_objects as go
 import plotly.io as pio
 
+from autotune.search.records import StudyRecord
+from autotune.search.storage import Storages
 from dashboards import extract, figures, headline, insights, measured
 from dashboards import provenance as pv
 from dashboards.extract import Empty, StudyData
@@ -38,6 +40,7 @@ __all__ = [
     "build_report",
     "render_html",
     "write_html",
+    "dashboard_note",
     "attach_to_dashboard",
     "insights_markdown",
 ]
@@ -136,10 +139,10 @@ def _merge_replays(
 
 
 def build_report(
-    automated: optuna.Study,
-    crowd: optuna.Study,
+    automated: StudyRecord,
+    crowd: StudyRecord,
     *,
-    replay: optuna.Study | None = None,
+    replay: StudyRecord | None = None,
     spread: SpreadData | Empty | None = None,
     own_nets: Sequence[measured.OwnNetScore] | None = None,
     replay_table: measured.ReplayTable | None = None,
@@ -250,7 +253,7 @@ def build_report(
         key=_agents_order,
     )
     return Report(
-        title=f"{automated.study_name} vs the crowd",
+        title=f"{automated.name} vs the crowd",
         studies=sides,
         sections=sections,
         insights=results,
@@ -429,18 +432,11 @@ def write_html(report: Report, path: str | Path) -> Path:
     return out
 
 
-def attach_to_dashboard(study: optuna.Study, report: Report, sections: Sequence[str] | None = None) -> list[str]:
-    """Store the report's figures (fixed ids: re-running replaces them) and a markdown note in ``study``."""
-    from optuna_dashboard import save_note, save_plotly_graph_object
-
-    ids = []
-    for section in report.sections:
-        if isinstance(section.figure, Empty) or (sections is not None and section.key not in sections):
-            continue
-        ids.append(save_plotly_graph_object(study, section.figure, graph_object_id=f"autotune-{section.key}"))
+def dashboard_note(report: Report) -> str:
+    """The markdown note optuna-dashboard shows beside the figures: headline, what each value is, insights."""
     empty = [f"* {s.title}: {s.figure.reason}" for s in report.sections if isinstance(s.figure, Empty)]
     sides = [line for d in report.studies.values() for line in _side_lines(d)] + _own_nets_lines(report.own_nets)
-    note = "\n".join(
+    return "\n".join(
         [
             f"# {report.title}",
             "",
@@ -463,5 +459,17 @@ def attach_to_dashboard(study: optuna.Study, report: Report, sections: Sequence[
             *(["", "## Panels without data", "", *empty] if empty else []),
         ]
     )
-    save_note(study, note)
-    return ids
+
+
+def attach_to_dashboard(
+    storages: Storages, study_name: str, report: Report, sections: Sequence[str] | None = None
+) -> list[str]:
+    """Store the report's figures (fixed ids: re-running replaces them) and its note in the stored study."""
+    from autotune.search.dashboard import attach
+
+    chosen = {
+        f"autotune-{s.key}": s.figure
+        for s in report.sections
+        if not isinstance(s.figure, Empty) and (sections is None or s.key in sections)
+    }
+    return attach(storages, study_name, chosen, dashboard_note(report))

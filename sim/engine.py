@@ -114,6 +114,29 @@ def _next_run(
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def end_run(
+    cars: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    w: int,
+    scores: np.ndarray,
+    ego: np.ndarray,
+    run_seeds: np.ndarray,
+) -> bool:
+    """A run of world ``w`` has played its frames: record its score, then reset for the next run.
+
+    True when the world has done all its runs (nothing is reset). The seam for a driver of its own
+    (``drive_world``'s loop with something else inline, e.g. the learner's exact training run).
+    """
+    if _finish_run(fs, ints, cfg, w, scores, ego):
+        return True
+    _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
+    return False
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _advance_world(
     cars: np.ndarray,
     grid: np.ndarray,

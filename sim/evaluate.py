@@ -7,7 +7,8 @@
 ``FILE.py:FUNCTION``, a callable ``f(obs) -> actions`` on observation batches (``obs.inputs``
 (N, D), ``obs.lane`` (N,), …). With ``--json`` the last line is one JSON object with the per-run
 ``scores`` (run order), ``median_site`` (the original's lexicographic median), ``median``,
-``mean``, ``ci95`` and timing. Bad arguments exit with code 2 and a one-line message.
+``mean``, ``ci95`` and timing. Bad arguments exit with code 2 and a one-line message: every bad
+value is a ``ConfigError`` naming the option, turned into that line in ``main`` alone.
 """
 
 from __future__ import annotations
@@ -24,10 +25,6 @@ from sim.config import ConfigError, EngineConfig
 from sim.policies import BUILTINS
 from sim.protocols import PROTOCOLS, EvalResult, evaluate
 from sim.simulator import Observation, PolicyError
-
-
-class UsageError(Exception):
-    """A bad command-line value; the message names the argument and what is allowed."""
 
 
 def _fail(message: str) -> NoReturn:
@@ -68,18 +65,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def load_policy(spec: str, config: EngineConfig) -> tuple[Callable[[Observation], Any], str]:
-    """A built-in by name or ``FILE.py:FUNCTION``; raises ``UsageError`` naming ``--policy``."""
+    """A built-in by name or ``FILE.py:FUNCTION``; raises ``ConfigError`` naming ``--policy``."""
     if spec in BUILTINS:
         try:
             return BUILTINS[spec].bind(config), spec
         except ValueError as exc:
-            raise UsageError(f"--policy: {exc}") from None
+            raise ConfigError(f"--policy: {exc}") from None
     if ":" not in spec:
-        raise UsageError(f"--policy: '{spec}' is neither a built-in ({', '.join(BUILTINS)}) nor FILE.py:FUNCTION")
+        raise ConfigError(f"--policy: '{spec}' is neither a built-in ({', '.join(BUILTINS)}) nor FILE.py:FUNCTION")
     file_name, _, func_name = spec.rpartition(":")
     path = Path(file_name)
     if not path.is_file():
-        raise UsageError(f"--policy: file '{file_name}' does not exist")
+        raise ConfigError(f"--policy: file '{file_name}' does not exist")
     try:
         module_spec = importlib.util.spec_from_file_location(f"_user_policy_{path.stem}", path)
         if module_spec is None or module_spec.loader is None:
@@ -87,10 +84,10 @@ def load_policy(spec: str, config: EngineConfig) -> tuple[Callable[[Observation]
         module = importlib.util.module_from_spec(module_spec)
         module_spec.loader.exec_module(module)
     except Exception as exc:  # any failure of user code is a usage error, reported in one line
-        raise UsageError(f"--policy: could not load '{file_name}': {type(exc).__name__}: {exc}") from None
+        raise ConfigError(f"--policy: could not load '{file_name}': {type(exc).__name__}: {exc}") from None
     fn = getattr(module, func_name, None)
     if fn is None or not callable(fn):
-        raise UsageError(f"--policy: '{file_name}' has no callable '{func_name}'")
+        raise ConfigError(f"--policy: '{file_name}' has no callable '{func_name}'")
     return fn, spec
 
 
@@ -109,8 +106,24 @@ def _summary(result: EvalResult) -> str:
     return "\n".join(lines)
 
 
+def _as_option(exc: ConfigError, dashes: bool = False) -> ConfigError:
+    """``field: problem`` as ``--field: problem`` (the option the user typed)."""
+    field, _, rest = str(exc).partition(": ")
+    if not rest:
+        return exc
+    return ConfigError(f"--{field.replace('_', '-') if dashes else field}: {rest}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv``, evaluate, print; a bad value (a ``ConfigError``) is one line on stderr and exit 2."""
     args = build_parser().parse_args(argv)
+    try:
+        return _run(args)
+    except ConfigError as exc:
+        _fail(str(exc))
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         config = EngineConfig(
             ruleset=args.ruleset,
@@ -120,18 +133,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             other_agents=args.other_agents,
         )
     except ConfigError as exc:
-        field, _, rest = str(exc).partition(": ")
-        _fail(f"--{field.replace('_', '-')}: {rest}" if rest else str(exc))
+        raise _as_option(exc, dashes=True) from None
     if args.protocol not in PROTOCOLS:
-        _fail(f"--protocol: '{args.protocol}' is not a protocol; use one of {', '.join(PROTOCOLS)}")
+        raise ConfigError(f"--protocol: '{args.protocol}' is not a protocol; use one of {', '.join(PROTOCOLS)}")
     for name in ("runs", "frames", "threads"):
         value = getattr(args, name)
         if value is not None and value <= 0:
-            _fail(f"--{name}: must be a positive integer, got {value}")
-    try:
-        policy, name = load_policy(args.policy, config)
-    except UsageError as exc:
-        _fail(str(exc))
+            raise ConfigError(f"--{name}: must be a positive integer, got {value}")
+    policy, name = load_policy(args.policy, config)
 
     bar = None
     progress = None
@@ -158,10 +167,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             progress=progress,
         )
     except ConfigError as exc:
-        field, _, rest = str(exc).partition(": ")
-        _fail(f"--{field}: {rest}" if rest else str(exc))
+        raise _as_option(exc) from None
     except PolicyError as exc:
-        _fail(f"--policy: {exc}")
+        raise ConfigError(f"--policy: {exc}") from None
     finally:
         if bar is not None:
             bar.close()

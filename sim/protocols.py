@@ -22,10 +22,11 @@ compiled, on a cold cache), so it measures simulation, not numba.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numba
@@ -144,6 +145,26 @@ class EvalResult:
 ProgressFn = Callable[[int, int], None]  # (frames done, frames total)
 
 
+@contextlib.contextmanager
+def numba_threads(threads: int | None) -> Iterator[None]:
+    """numba's parallel loops on ``threads`` threads inside the block, the previous count restored after.
+
+    None: the count the process owner set (``autotune.configure_process``), untouched. Library code
+    changes the process-wide setting only this way, so a call never leaves it changed.
+    """
+    if threads is None:
+        yield
+        return
+    if threads < 1:
+        raise ConfigError(f"threads: must be ≥ 1, got {threads}")
+    old = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
+
+
 def _resolve(config: EngineConfig, protocol: str, runs: int | None, frames: int | None) -> tuple[Protocol, int, int]:
     if protocol not in PROTOCOLS:
         raise ConfigError(f"protocol: '{protocol}' is not a protocol; use one of {', '.join(PROTOCOLS)}")
@@ -180,13 +201,30 @@ def evaluate(
     ``stream_state`` overrides the ``Math.random`` state the protocol starts from (default
     ``mulberry32(seed)``): a caller that consumed draws before the engine starts — building a
     convnetjs brain draws its weights from the same stream — passes the advanced state.
+    ``threads``: numba threads of the batched protocols for this call only (``numba_threads``);
+    None leaves the process's count.
     """
+    with numba_threads(threads):
+        return _evaluate(
+            config, policy, protocol, seed=seed, runs=runs, frames=frames, stream_state=stream_state,
+            policy_name=policy_name, progress=progress,
+        )  # fmt: skip
+
+
+def _evaluate(
+    config: EngineConfig,
+    policy: Callable[[Observation], Any],
+    protocol: str,
+    *,
+    seed: int | None,
+    runs: int | None,
+    frames: int | None,
+    stream_state: int | None,
+    policy_name: str | None,
+    progress: ProgressFn | None,
+) -> EvalResult:
     proto, runs, frames = _resolve(config, protocol, runs, frames)
     seed = proto.seed if seed is None else seed
-    if threads is not None:
-        if threads < 1:
-            raise ConfigError(f"threads: must be ≥ 1, got {threads}")
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     name = policy_name or getattr(policy, "name", None) or getattr(policy, "__name__", type(policy).__name__)
     compiled = getattr(policy, "compiled", None)
     memoryless = not getattr(policy, "stateful", compiled is None)

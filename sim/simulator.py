@@ -56,7 +56,10 @@ class Observation:
     ``inputs`` (N, D) float64: the learner input vectors (spec order and normalisation);
     ``lane`` (N,) int: the deciding car's target lane, 0 = leftmost; ``car`` (N,): 0 = ego,
     i = agent i; ``world`` (N,): world index; ``reward`` (N,): the ego's ``(I − 60)/20``, NaN for
-    agents; ``speed`` (N,): speed setting ``a``; ``mph`` (N,): current speed ``20·c·a``.
+    agents; ``speed`` (N,): speed setting ``a``; ``mph`` (N,): current speed ``20·c·a``;
+    ``mrand`` (n_worlds,) int64: every world's ``Math.random`` (mulberry32) state — the simulator's
+    own array: a policy that draws as the original did (``uniform``, or compiled code given this
+    array) advances the world's stream in place.
     """
 
     inputs: np.ndarray
@@ -66,7 +69,7 @@ class Observation:
     reward: np.ndarray
     speed: np.ndarray
     mph: np.ndarray
-    _mrand: np.ndarray = dataclasses.field(repr=False)
+    mrand: np.ndarray = dataclasses.field(repr=False)
 
     def __len__(self) -> int:
         return int(self.inputs.shape[0])
@@ -75,7 +78,7 @@ class Observation:
         """One ``Math.random()`` draw per row from that world's stream (as the original policies draw)."""
         out = np.empty(len(self))
         for k, w in enumerate(self.world):
-            self._mrand[w], out[k] = mulberry32_next(int(self._mrand[w]))
+            self.mrand[w], out[k] = mulberry32_next(int(self.mrand[w]))
         return out
 
 
@@ -216,7 +219,7 @@ class Simulator:
             reward=self._obs_reward[worlds],
             speed=speeds[:, 0],
             mph=speeds[:, 1],
-            _mrand=self.mrand,
+            mrand=self.mrand,
         )
 
     def start(self) -> Observation | None:

@@ -71,3 +71,49 @@ def test_configure_process_sets_the_process_once() -> None:
     )
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
+
+
+def _error_types() -> list[type]:
+    from autotune.convnet.netjson import NetFormatError
+    from autotune.convnet.spec import NetSpecError
+    from autotune.search.records import RecordError
+    from autotune.search.spec import SpecError
+    from autotune.search.storage import StorageError, UnknownStudyError
+    from dashboards.crowd_data import CrowdDataError
+    from dashboards.crowd_filter import FilterError
+    from sim.config import ConfigError
+
+    return [ConfigError, NetFormatError, NetSpecError, SpecError, StorageError, UnknownStudyError, RecordError,
+            CrowdDataError, FilterError]  # fmt: skip
+
+
+@pytest.mark.parametrize("error", _error_types(), ids=lambda e: e.__name__)
+def test_every_bad_input_error_is_one_line_exit_2_in_main(
+    error: type, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Net, spec, storage, record, crowd and filter errors are ConfigErrors; ``main`` alone prints them."""
+    from sim.config import ConfigError
+
+    assert issubclass(error, ConfigError)
+
+    def run(args: argparse.Namespace) -> int:
+        raise error("--out: the problem; the fix\nmore detail that a terminal line does not need")
+
+    monkeypatch.setattr("autotune.commands.replay.run", run)
+    assert cli.main(["replay", "--out", "x.gif"]) == 2
+    assert capsys.readouterr().err == "error: --out: the problem; the fix\n"
+
+
+def test_commands_live_in_autotune_commands() -> None:
+    """One roof: every subcommand module is ``autotune.commands.<name>``, and none catches ConfigError itself."""
+    import ast
+
+    assert all(m.startswith("autotune.commands.") for m in cli.SUBCOMMANDS)
+    for module_name in cli.SUBCOMMANDS:
+        path = ROOT / (module_name.replace(".", "/") + ".py")
+        caught = [
+            ast.unparse(handler.type)
+            for handler in ast.walk(ast.parse(path.read_text()))
+            if isinstance(handler, ast.ExceptHandler) and handler.type is not None
+        ]
+        assert not [c for c in caught if "ConfigError" in c or c == "ValueError"], (module_name, caught)

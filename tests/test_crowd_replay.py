@@ -21,10 +21,12 @@ import optuna
 import pytest
 
 from autotune.learner.config import TrainConfig
-from autotune.search.driver import CONFIG_ATTR, Driver
+from autotune.search import keys
+from autotune.search.driver import Driver
+from autotune.search.enqueue import replay_spec
 from autotune.search.storage import load_study, open_storage
 from dashboards import crowd, crowd_data
-from dashboards.crowd_cli import enqueue_replay, replay_seed, replay_spec
+from dashboards.crowd_replay import enqueue_replay, replay_seed
 from tests.test_search_launch import check_finished_trials, tagged_processes, wait_until
 
 # short crowd settings (≤ 2,300 weights): 5,000 iterations (one v2 row), or v1 ones above 70.5 mph (10,000 iterations)
@@ -112,12 +114,15 @@ def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: 
     odd = by_id["dt-blackvitriol-rl-v00"]  # fc:1:softmax → neurons_0 = 1, activation_0 'linear': beyond paper.toml
     configs = {sub.id: crowd_data.train_config(sub) for sub in (v1, odd)}
     storages = open_storage(str(tmp_path / "j.log"), "r")
-    spec = replay_spec("r", storage="", workers=1, n_trials=2, params=[crowd.crowd_params(c) for c in configs.values()])
+    spec = replay_spec(
+        "r", storage="", workers=1, n_trials=2, params=[crowd.crowd_params(c) for c in configs.values()],
+        activations=crowd.ACTIVATION_CHOICES,
+    )  # fmt: skip
     assert spec.study.pruner == "none" and spec.evaluation.final_protocol == "v2-official"  # the space's ruleset
     assert spec.dimensions["neurons"].low == 1 and "linear" in spec.dimensions["activation"].choices
     driver = Driver(spec, storages)
     study = driver.open_study()
-    assert enqueue_replay(study, [v1, odd], seeds=1)[:2] == (2, 0)
+    assert enqueue_replay(storages, "r", [v1, odd], seeds=1)[:2] == (2, 0)
     driver.pool = _FakePool()
     assert driver._launch_next(0) and driver._launch_next(1)
     for task, sub in zip(driver.pool.tasks, (v1, odd), strict=True):
@@ -130,7 +135,7 @@ def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: 
     driver._fail(run.trial, "lost: worker died", retryable=True)
     driver._enqueue_retries()
     retry = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
-    assert len(retry) == 1 and retry[0].user_attrs[CONFIG_ATTR] == configs[v1.id].to_mapping()
+    assert len(retry) == 1 and retry[0].user_attrs[keys.CONFIG] == configs[v1.id].to_mapping()
     assert retry[0].user_attrs["crowd_id"] == v1.id and retry[0].user_attrs["retry_of"] == run.trial.number
     assert driver._launch_next(0) and driver.pool.tasks[2].config == driver.pool.tasks[0].config
     assert driver.pool.tasks[2].seed == driver.pool.tasks[0].seed

@@ -263,7 +263,7 @@ class _Obs:
         self.inputs = np.array([x])
         self.world = np.array([0])
         self.car = np.array([car])
-        self._mrand = mr
+        self.mrand = mr
 
     def __len__(self) -> int:
         return 1

@@ -1,4 +1,7 @@
-"""Report data as values: extraction with provenance, the insights recomputed independently, the report."""
+"""Report data as values: extraction with provenance, the insights recomputed independently, the report.
+
+The tests build studies with Optuna directly, as the search service would have stored them; the reports
+see them only as plain records (``autotune.search.records``: ``snapshot`` / ``read_study``)."""
 
 from __future__ import annotations
 
@@ -15,10 +18,13 @@ import pytest
 from scipy import stats
 
 from autotune.learner.config import TrainConfig
+from autotune.search.records import StudyRecord, read_study, snapshot, to_optuna_distribution
+from autotune.search.storage import Storages, load_study, open_storage
 from dashboards import crowd, extract, headline, insights, measured, report, spread
 from dashboards import crowd_data as cd
 from dashboards import provenance as pv
-from dashboards.crowd_cli import FilterError, compile_filter, enqueue_replay
+from dashboards.crowd_filter import FilterError, compile_filter
+from dashboards.crowd_replay import enqueue_replay
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 COMPLETE, PRUNED, FAIL = (
@@ -77,7 +83,7 @@ def contract_study(
                 state=state,
                 value=value,
                 params=params,
-                distributions=crowd.distributions([params]),
+                distributions={k: to_optuna_distribution(d) for k, d in crowd.distributions([params]).items()},
                 user_attrs=attrs,
                 intermediate_values={0: 40.0},
             )
@@ -86,13 +92,25 @@ def contract_study(
     return study
 
 
+def data_of(study: optuna.Study | StudyRecord) -> extract.StudyData:
+    """What the report reads of a study: its plain records (an Optuna study is read as ``read_study`` would)."""
+    return extract.study_data(study if isinstance(study, StudyRecord) else snapshot(study))
+
+
+def replay_study(directory: Path) -> tuple[Storages, optuna.Study]:
+    """An empty replay study in a journal under ``directory``: the storages and the Optuna study."""
+    storages = open_storage(str(directory / "replay.log"), "crowd-replay")
+    optuna.create_study(study_name="crowd-replay", storage=storages.storage, direction="maximize")
+    return storages, load_study(storages, "crowd-replay")
+
+
 @pytest.fixture(scope="module")
-def crowd_study() -> optuna.Study:
+def crowd_study() -> StudyRecord:
     return crowd.crowd_study()
 
 
 @pytest.fixture(scope="module")
-def crowd_points(crowd_study: optuna.Study) -> extract.StudyData:
+def crowd_points(crowd_study: StudyRecord) -> extract.StudyData:
     return extract.study_data(crowd_study)
 
 
@@ -103,7 +121,7 @@ def sqlite(tmp_path: Path) -> str:
 
 def test_extraction_from_a_real_storage(sqlite: str) -> None:
     study = contract_study(sqlite, n=10, states={2: PRUNED, 6: FAIL})
-    data = extract.study_data(optuna.load_study(study_name="auto", storage=sqlite))
+    data = extract.study_data(read_study(open_storage(sqlite, "auto", heartbeat=False), "auto"))
     assert data.source == "autotune" and [t.state for t in data.trials].count("COMPLETE") == 8
     trials = study.get_trials()
     complete = [t for t in trials if t.state == COMPLETE]
@@ -179,26 +197,26 @@ def test_labels_name_one_thing_each() -> None:
 
 def test_empty_states_are_explained() -> None:
     study = contract_study(None, n=3)
-    data = extract.study_data(study)
+    data = data_of(study)
     assert isinstance(extract.importances(data), extract.Empty)
     assert "at least 8 scored configurations, have 3" in extract.importances(data).reason  # type: ignore[union-attr]
     assert isinstance(extract.tsne_map([data]), extract.Empty)
     empty = optuna.create_study(direction="maximize", study_name="none")
-    none = extract.study_data(empty)
+    none = data_of(empty)
     assert isinstance(extract.progress(none), extract.Empty)
     (result, *_rest) = insights.evaluate_study(none, "autotune")
     assert result.holds is None and "only 0 configuration" in result.note and result.p_value is None
     with pytest.raises(ValueError, match="minimizes"):
-        extract.study_data(optuna.create_study(direction="minimize"))
+        data_of(optuna.create_study(direction="minimize"))
     # a trial whose engine is not recorded is left out with the reason, not guessed
     bare = optuna.create_study(direction="maximize", study_name="bare")
     bare.add_trial(optuna.trial.create_trial(value=1.0, params={}, distributions={}))
-    assert extract.study_data(bare).skipped == {0: "no engine recorded (user attr config.ruleset)"}
+    assert data_of(bare).skipped == {0: "no engine recorded (user attr config.ruleset)"}
 
 
 def test_importances_take_engine_and_agents_from_the_stored_config() -> None:
     study = contract_study(None, n=24, seed=3)
-    data = extract.study_data(study)
+    data = data_of(study)
     a, b = extract.importances(data, seed=1), extract.importances(data, seed=1)
     assert isinstance(a, extract.Importances) and a == b
     assert {"engine", "other_agents", "patches_ahead", "gamma"} <= set(a.names)  # inputs from the stored config
@@ -215,28 +233,29 @@ def test_importances_take_engine_and_agents_from_the_stored_config() -> None:
                 user_attrs=t.user_attrs,
             )
         )  # fmt: skip
-    imp = extract.importances(extract.study_data(engine_only), seed=0)
+    imp = extract.importances(data_of(engine_only), seed=0)
     assert isinstance(imp, extract.Importances) and imp.names[0] == "engine", imp
     m1, m2 = extract.tsne_map([data], seed=5), extract.tsne_map([data], seed=5)
     assert isinstance(m1, extract.TsneMap) and m1 == m2 and len(m1.x) == 24
 
 
 def test_crowd_study_import_is_idempotent(tmp_path: Path) -> None:
-    storage = str(tmp_path / "crowd.log")
-    journal = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
-    study, first = crowd.import_crowd(journal)
+    storages = open_storage(str(tmp_path / "crowd.log"), "crowd")
+    study, first = crowd.import_crowd(storages)
     assert (first.added, first.existing) == (116, 0)
     assert sum(r == "no reported score" for r in first.skipped.values()) == 47
     assert first.skipped["dt-lupuleasa-core-deeptraffic-v32"].startswith("experience_size: 0")
-    _study, again = crowd.import_crowd(journal)
-    assert (again.added, again.existing) == (0, 116) and len(study.get_trials()) == 116
+    again_study, again = crowd.import_crowd(storages)
+    assert (again.added, again.existing) == (0, 116) and len(study.trials) == len(again_study.trials) == 116
+    assert read_study(storages, "crowd") == again_study
     # what the value is: the study's metric name and each trial's value_is say it is a claim
-    assert optuna.load_study(study_name="crowd", storage=journal).metric_names == [crowd.CROWD_METRIC]
+    assert load_study(storages, "crowd").metric_names == [crowd.CROWD_METRIC]
     assert "claimed by the author, not measured" in crowd.CROWD_METRIC
-    trials = study.get_trials()
+    trials = study.trials
     dates = [t.user_attrs["version_date"] for t in trials if t.user_attrs["version_date"]]
     assert dates == sorted(dates)  # trial number = submission order
-    best = study.best_trial
+    best = study.best
+    assert best is not None
     assert best.value == 75.86 and best.user_attrs["crowd_id"] == "dt-jordanott-deep-traffic-v03"
     assert best.params["n_layers"] == 5 and best.params["one_minus_gamma"] == pytest.approx(0.09)
     attrs = best.user_attrs
@@ -390,7 +409,7 @@ def test_insight_sign_and_constant_setting() -> None:
                 user_attrs={"config": cfg.to_mapping(), "param_count": 100 + k},
             )
         )
-    results = insights.evaluate_all({"autotune": extract.study_data(study)})["autotune"]
+    results = insights.evaluate_all({"autotune": data_of(study)})["autotune"]
     # one engine, no agents: one test per insight (a pooled test would repeat it); no repository row
     assert [r.group for r in results] == ["v2 engine"] * 4
     size, window, ahead, gamma = results
@@ -405,13 +424,13 @@ def test_insight_sign_and_constant_setting() -> None:
 # --- the measured crowd in the report ----------------------------------------------------------------------
 
 
-def test_replay_and_own_net_comparisons(crowd_points: extract.StudyData) -> None:
-    replay = optuna.create_study(direction="maximize", study_name="crowd-replay")
-    replay.set_user_attr("source", "crowd-replay")
+def test_replay_and_own_net_comparisons(tmp_path: Path, crowd_points: extract.StudyData) -> None:
+    storages, replay = replay_study(tmp_path)
     subs = [s for s in cd.load_submissions() if s.id in ("dt-gsurma-deep-traffic-v00", "dt-jeremy26-deep-traffic-v00")]
-    added, existing, skipped = enqueue_replay(replay, subs, seeds=2)
+    added, existing, skipped = enqueue_replay(storages, "crowd-replay", subs, seeds=2)
     assert (added, existing, skipped) == (4, 0, {})
-    assert enqueue_replay(replay, subs, seeds=2)[:2] == (0, 4)  # idempotent
+    assert enqueue_replay(storages, "crowd-replay", subs, seeds=2)[:2] == (0, 4)  # idempotent
+    assert replay.user_attrs["source"] == "crowd-replay" and replay.metric_names == [crowd.REPLAY_METRIC]
     for trial, value in zip(replay.get_trials(), (70.0, 72.0, 60.0, 61.0), strict=True):
         assert trial.state == optuna.trial.TrialState.WAITING
         fixed = crowd.crowd_params(TrainConfig.from_mapping(trial.user_attrs["config"]))
@@ -419,7 +438,7 @@ def test_replay_and_own_net_comparisons(crowd_points: extract.StudyData) -> None
         t = replay.ask()
         assert t.user_attrs["crowd_id"] == trial.user_attrs["crowd_id"]
         replay.tell(t, value)
-    data = extract.study_data(replay)
+    data = data_of(replay)
     assert {t.kind for t in data.scored} == {pv.REPLAYED}
     rows = extract.replay_comparison(data, crowd_points)
     assert isinstance(rows, list)
@@ -437,7 +456,7 @@ def test_replay_and_own_net_comparisons(crowd_points: extract.StudyData) -> None
 
 def test_headline_compares_like_with_like(crowd_points: extract.StudyData) -> None:
     own = measured.load_own_nets()
-    mixed = extract.study_data(contract_study(None, n=10))
+    mixed = data_of(contract_study(None, n=10))
     auto = dataclasses.replace(mixed, trials=tuple(t for t in mixed.trials if t.engine == "v2"))
     best = max(auto.scored, key=lambda t: t.value)  # type: ignore[arg-type,return-value]
     h = headline.headline(auto, crowd_points, own)
@@ -462,25 +481,26 @@ def test_headline_compares_like_with_like(crowd_points: extract.StudyData) -> No
     )  # fmt: skip
     assert v1.claim_same_engine is not None and v1.claim_same_engine.value == 75.86 and v1.claim_any_engine is None
     assert "no other agents (v1 engine)" in v1.lines[1] and len(v1.lines) == 3
-    empty = headline.headline(extract.study_data(optuna.create_study(direction="maximize")), crowd_points, own)
+    empty = headline.headline(data_of(optuna.create_study(direction="maximize")), crowd_points, own)
     assert empty.automated is None and "no scored trial yet" in empty.lines[0]
 
 
 @pytest.fixture(scope="module")
-def built_report(tmp_path_factory: pytest.TempPathFactory, crowd_study: optuna.Study) -> tuple[report.Report, str]:
+def built_report(tmp_path_factory: pytest.TempPathFactory, crowd_study: StudyRecord) -> tuple[report.Report, str]:
     """A full report: a mixed-engine automated study, the crowd, a replay study, a small replay table, the shipped
     spread and own-net scores."""
     tmp = tmp_path_factory.mktemp("report")
     storage = f"sqlite:///{tmp / 'auto.db'}"
-    study = contract_study(storage, n=16, states={3: PRUNED})
-    replay = optuna.create_study(direction="maximize", study_name="crowd-replay")
-    replay.set_user_attr("source", "crowd-replay")
+    study = snapshot(contract_study(storage, n=16, states={3: PRUNED}))
+    storages, replay = replay_study(tmp)
     subs = [s for s in cd.load_submissions() if s.id in ("dt-gsurma-deep-traffic-v00", "dt-jeremy26-deep-traffic-v00")]
-    enqueue_replay(replay, subs, seeds=1)
+    enqueue_replay(storages, "crowd-replay", subs, seeds=1)
     for value in (73.0, 69.0):
         replay.tell(replay.ask(), value)
     table = _small_table()
-    built = report.build_report(study, crowd_study, replay=replay, spread=spread.load_spread(), replay_table=table)
+    built = report.build_report(
+        study, crowd_study, replay=snapshot(replay), spread=spread.load_spread(), replay_table=table
+    )
     return built, storage
 
 
@@ -580,8 +600,8 @@ def test_report_sections_html_and_dashboard(built_report: tuple[report.Report, s
     assert "value='10 other agents'" in page and "id='agents-filter'" in page
     for line in built.headline.lines:
         assert html.escape(line) in page
-    study = optuna.load_study(study_name="auto", storage=storage)
-    ids = report.attach_to_dashboard(study, built)
+    storages = open_storage(storage, "auto", heartbeat=False)
+    ids = report.attach_to_dashboard(storages, "auto", built)
     assert ids == [f"autotune-{k}" for k in keys]
     from optuna_dashboard import get_note
 
@@ -596,7 +616,7 @@ def test_report_sections_html_and_dashboard(built_report: tuple[report.Report, s
     )
     assert "partial Spearman ρ(param_count, score \\| engine, other agents) | 108 | +0.342" in note
     assert "measured: own weights: 14 net(s), best 75.80 mph (dt-jnorthrup-deeptraffic-v05, 10 other agents)" in note
-    assert report.attach_to_dashboard(study, built) == ids  # fixed ids: re-running replaces, not duplicates
+    assert report.attach_to_dashboard(storages, "auto", built) == ids  # fixed ids: re-running replaces, not duplicates
 
 
 def test_filter_expressions() -> None:

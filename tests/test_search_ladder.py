@@ -16,9 +16,9 @@ import pytest
 
 from autotune import TrainConfig, dumps_net, evaluate_official
 from autotune.learner import train
-from autotune.search import racing, space
+from autotune.search import keys, racing, space
 from autotune.search.cost import FEATURES, CostModel, Observation, features, plan
-from autotune.search.driver import WARM_ATTR, Driver, WarmConfig, clip_params, make_pruner, make_sampler
+from autotune.search.driver import Driver, WarmConfig, clip_params, make_pruner, make_sampler
 from autotune.search.gate import CostGatedSampler
 from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
 from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial
@@ -205,7 +205,7 @@ def test_crowd_prior_lands_inside_the_space_and_claims_are_not_values(tmp_path: 
     claims = {p.claimed for p in prior}
     for t in waiting:
         params = t.system_attrs["fixed_params"]
-        assert not space.outside(spec, params), t.user_attrs[WARM_ATTR]
+        assert not space.outside(spec, params), t.user_attrs[keys.WARM_START]
         assert t.value is None and not claims & {v for v in t.user_attrs.values() if isinstance(v, float)}
     driver._warm_start()  # once per study: a resumed run enqueues nothing more  # noqa: SLF001
     assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == len(waiting)

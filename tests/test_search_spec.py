@@ -39,7 +39,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 def _error(tmp_path: Path, text: str) -> str:
     path = _write(tmp_path, text)
     with pytest.raises(SpecError) as info:
-        load_spec(path)
+        space.check(load_spec(path))  # as `autotune launch` validates a spec: its tables, then its space's corners
     msg = str(info.value)
     assert "\n" not in msg, msg
     assert msg.startswith(f"{path}: "), msg
@@ -48,7 +48,7 @@ def _error(tmp_path: Path, text: str) -> str:
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_configs_load(name: str) -> None:
-    spec = load_spec(CONFIGS / name)
+    spec = space.check(load_spec(CONFIGS / name))
     assert spec.study.name == Path(name).stem
     assert spec.evaluation.final_protocol == "v2-official"
     assert spec.study.n_trials is not None or spec.study.timeout_s is not None

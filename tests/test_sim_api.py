@@ -161,3 +161,29 @@ def test_any_policy_with_a_compiled_twin_drives_the_sequential_protocols():
     got = evaluate(config, Twin(), "v2-official", runs=4)
     assert got.scores == want.scores
     assert got.ego_scores == want.ego_scores
+
+
+def test_evaluate_sets_numba_threads_for_the_call_only() -> None:
+    """``threads`` is scoped: numba's process-wide count is the same after the call (and after a failing one)."""
+    import numba
+
+    from sim.protocols import CUSTOM, numba_threads
+
+    config = EngineConfig(ruleset="v2", lanes_side=0, patches_ahead=1, patches_behind=0)
+    before = numba.get_num_threads()
+    seen: list[int] = []
+
+    def policy(obs):  # noqa: ANN001, ANN202 - a Python policy: records the count it runs under
+        seen.append(numba.get_num_threads())
+        return np.zeros(len(obs), dtype=np.int64)
+
+    most = numba.config.NUMBA_NUM_THREADS
+    with numba_threads(most):  # the caller's count, whatever the machine
+        evaluate(config, policy, CUSTOM, runs=2, frames=20, threads=1)
+        assert set(seen) == {1} and numba.get_num_threads() == most
+        with pytest.raises(ConfigError, match="threads: must be ≥ 1"):
+            evaluate(config, policy, CUSTOM, runs=2, frames=20, threads=0)
+        with pytest.raises(RuntimeError), numba_threads(1):
+            raise RuntimeError("the block fails")
+        assert numba.get_num_threads() == most
+    assert numba.get_num_threads() == before

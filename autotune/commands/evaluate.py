@@ -25,8 +25,8 @@ import argparse
 import json
 from typing import Any
 
-from autotune.cliutil import fail
-from autotune.search.inspect_cli import add_trial_arguments, evaluate_trial
+from autotune.cliutil import add_storage_arguments
+from sim.config import ConfigError
 
 
 def add_parser(subparsers: Any) -> None:
@@ -73,7 +73,6 @@ def evaluate(args: argparse.Namespace) -> dict[str, Any]:
     """The evaluation of the parsed arguments, as the JSON-able result."""
     from autotune.convnet.netjson import load
     from autotune.learner.brain_policy import evaluate_net
-    from sim.config import ConfigError
     from sim.protocols import OFFICIAL, PROTOCOLS, V1_DISTRIBUTION, V1_ORIGINAL
 
     # the protocol names, with "_" for "-", and these spellings (None: the ruleset's official protocol)
@@ -107,19 +106,12 @@ def evaluate(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Evaluate and print; 0, or 2 after a one-line error for bad input."""
+    """Evaluate and print; 0 (``--trial``: 0 if the score is reproduced, else 1); bad input raises ConfigError."""
     if args.trial is not None or args.retrain:
-        return evaluate_trial(args)  # a study's trial: 0 if its score is reproduced, else 1
+        return evaluate_trial(args)
     if args.net is None:
-        return fail("--net: required (or --trial STUDY:N)")
-    from autotune.convnet.netjson import NetFormatError
-    from autotune.convnet.spec import NetSpecError
-    from sim.config import ConfigError
-
-    try:
-        out = evaluate(args)
-    except (NetFormatError, NetSpecError, ConfigError, ValueError) as exc:  # ValueError: e.g. simulator arguments
-        return fail(str(exc))
+        raise ConfigError("--net: required (or --trial STUDY:N)")
+    out = evaluate(args)
     if args.json:
         print(json.dumps(out))
     else:
@@ -133,3 +125,54 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"{out['wall_seconds']:.1f} s, {out['frames_per_second']:,.0f} frames/s")
     return 0
+
+
+# -- autotune evaluate --trial STUDY:N [--retrain] -------------------------------------------------
+def add_trial_arguments(p: argparse.ArgumentParser) -> None:
+    """``autotune evaluate``'s options that take the net from a study's trial instead of ``--net``."""
+    p.add_argument(
+        "--trial",
+        metavar="STUDY:N",
+        help="a study's COMPLETE trial: evaluate its stored net again (with --retrain: train it again from its "
+        "seed) and compare with its stored official score; exit status 1 if they differ",
+    )
+    add_storage_arguments(
+        p,
+        storage_help="--trial: the study's storage (default: runs/<study>/journal.log)",
+        artifacts_help="--trial: the study's artifact directory (default: beside its storage)",
+    )
+    p.add_argument("--retrain", action="store_true", help="--trial: retrain its config with its seed, then score it")
+
+
+def evaluate_trial(args: argparse.Namespace) -> int:
+    """``autotune evaluate --trial STUDY:N [--retrain]``: reproduce a trial's official score; 0 if identical, else 1."""
+    from autotune.search.records import rescore_trial, retrain_trial, study_resources
+    from autotune.search.storage import open_storage
+
+    if args.trial is None:
+        raise ConfigError("--retrain: needs --trial STUDY:N")
+    if args.net is not None or args.config is not None:
+        raise ConfigError("--trial: takes the net from the study; drop --net/--config")
+    study, sep, number = args.trial.rpartition(":")
+    if not sep or not study or not number.isdigit():
+        raise ConfigError(f"--trial: expected STUDY:N (e.g. quick:12), got '{args.trial}'")
+    # a missing trial or artifact is a ConfigError too (exit 2): exit status 1 means "not reproduced" only
+    storages = open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts, create=False)
+    if args.retrain:
+        cpus = int(study_resources(storages, study).get("cpus_per_trial", 1) or 1)
+        from autotune import configure_process
+
+        configure_process(threads=max(1, cpus), numba_threads=max(1, cpus))  # as the study's workers ran
+        rep = retrain_trial(storages, study, int(number))
+    else:
+        rep = rescore_trial(storages, study, int(number))
+    if args.json:
+        print(json.dumps(rep.to_json()))
+    else:
+        what = f"retrained from seed {rep.seed}" if rep.how == "retrain" else "its stored net re-scored"
+        verdict = "identical" if rep.identical else f"DIFFERENT by {rep.reproduced - rep.stored:+.6g}"
+        print(
+            f"trial {rep.number} of {rep.study} ({rep.protocol}): stored {rep.stored!r} mph, {what}: "
+            f"{rep.reproduced!r} mph — {verdict} ({rep.wall_seconds:.1f} s)"
+        )
+    return 0 if rep.identical else 1

@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from autotune.cliutil import fail
 from autotune.learner.config import PRESETS, ConfigError, TrainConfig, load_toml, preset
 from autotune.learner.official import evaluate_official, official_protocol
 
@@ -106,15 +105,15 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train, write the outputs into ``--out``; 0, or 2 after a one-line error for bad input."""
+    """Train, write the outputs into ``--out``; 0; bad input raises ConfigError."""
+    config = load_config(args)
+    if args.report_points < 1:
+        raise ConfigError(f"--report-points: must be ≥ 1, got {args.report_points}")
+    out = Path(args.out)
     try:
-        config = load_config(args)
-        if args.report_points < 1:
-            raise ConfigError(f"--report-points: must be ≥ 1, got {args.report_points}")
-        out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-    except (ConfigError, OSError) as exc:
-        return fail(str(exc))
+    except OSError as exc:
+        raise ConfigError(str(exc)) from None  # as before: the OS's own message, e.g. [Errno 20] Not a directory
 
     import torch
 

@@ -59,8 +59,8 @@ from sim.jsnumber import js_number_to_string
 SUPPORTED_TYPES = ("input", "fc", "relu", "tanh", "sigmoid", "maxout", "dropout", "svm", "softmax", "regression", "lrn")
 
 
-class NetFormatError(ValueError):
-    """A net or settings file is unusable; the one-line message names the field."""
+class NetFormatError(ConfigError):
+    """A net or settings file is unusable; the one-line message names the field (bad input: exit 2 in the CLI)."""
 
 
 # --------------------------------------------------------------------------------------------

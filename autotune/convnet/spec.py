@@ -48,13 +48,15 @@ from typing import Any
 
 import numpy as np
 
+from sim.config import ConfigError
+
 NUM_ACTIONS = 5
 ACTIVATIONS = ("relu", "tanh", "sigmoid", "maxout")
 LRN_DEFAULTS = {"k": 1.0, "n": 3, "alpha": 0.1, "beta": 0.75}  # used when a hidden-layer string says just "lrn"
 
 
-class NetSpecError(ValueError):
-    """An invalid layer definition or network; the message names the field."""
+class NetSpecError(ConfigError):
+    """An invalid layer definition or network; the message names the field (bad input: exit 2 in the CLI)."""
 
 
 # --------------------------------------------------------------------------------------------

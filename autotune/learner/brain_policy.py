@@ -326,7 +326,7 @@ class BrainPolicy:
             self._grow(int(worlds.max()) + 1)
         inputs = np.ascontiguousarray(obs.inputs, dtype=np.float64)
         cars = np.ascontiguousarray(obs.car, dtype=np.int64)
-        _decide_rows(inputs, cars, worlds, obs._mrand, self.pstate, out)
+        _decide_rows(inputs, cars, worlds, obs.mrand, self.pstate, out)
         return out
 
 

@@ -475,8 +475,7 @@ def _run(cars, grid, fs, ints, cfg, mr, obs, scores, ego, run_seeds, learn_args)
                     rewardw, E0, E1, EA, ER, lwin, rwin, xin,
                 )  # fmt: skip
             engine.frame_post(cars, grid, fs, ints, cfg, 0, action)
-        if not engine._finish_run(fs, ints, cfg, 0, scores, ego):
-            engine._next_run(cars, fs, ints, mr, cfg, 0, run_seeds)
+        engine.end_run(cars, fs, ints, mr, cfg, 0, scores, ego, run_seeds)
     return 0
 
 

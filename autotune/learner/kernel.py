@@ -367,7 +367,7 @@ class Kernel:
             d = op.bwd(d)
             if d is None:
                 break
-        if self.blocked:
+        if self.blocked:  # torch has no public fused multi-tensor zero (``_foreach_*`` is its optimizers' own API)
             torch._foreach_zero_(self.blocked)
         self._update()
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 import torch
 
@@ -82,14 +81,13 @@ def quick_evaluate(
     frames: int = 2000,
     seed: int = QUICK_EVAL_SEED,
     rng: np.random.Generator | None = None,
+    threads: int | None = 1,
 ) -> EvalResult:
-    """Short custom-protocol evaluation (``runs`` independent worlds × ``frames``) of the greedy net."""
+    """Short custom-protocol evaluation (``runs`` independent worlds × ``frames``) of the greedy net.
+
+    ``threads``: numba threads for this evaluation only (None: the process's). One by default: a
+    20-world batch is too small to amortise the parallel region's barriers, which become very slow
+    when the other cores are busy (e.g. parallel trials). The process's own count is left as it is.
+    """
     policy = GreedyPolicy(module, config, rng)
-    # One numba thread: a 20-world batch is too small to amortise the parallel region's barriers,
-    # which become very slow when the other cores are busy (e.g. parallel trials).
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        return evaluate(config.engine_config, policy, CUSTOM, seed=seed, runs=runs, frames=frames)
-    finally:
-        numba.set_num_threads(old)
+    return evaluate(config.engine_config, policy, CUSTOM, seed=seed, runs=runs, frames=frames, threads=threads)

@@ -58,7 +58,7 @@ from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
-from autotune.search import racing, space
+from autotune.search import keys, racing, space
 from autotune.search.cost import CostModel, Observation, Plan, features, plan
 from autotune.search.gate import CostGatedSampler, distributions
 from autotune.search.ladder import Ladder, rung_config
@@ -76,26 +76,14 @@ from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storag
 from sim.config import ConfigError
 
 __all__ = [
-    "Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "OWNER_ATTR", "CONFIG_ATTR",
-    "WarmConfig", "clip_params", "OFFICIAL_SCORE_METRIC",
+    "Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "WarmConfig", "clip_params",
+    "OFFICIAL_SCORE_METRIC",
 ]  # fmt: skip
 
-OWNER_ATTR = "autotune:driver"  # system attr: {"host", "pid", "start"} of the driver running the trial
-BEAT_ATTR = "autotune:heartbeat"  # system attr: time.time() of the driver's latest heartbeat for the trial
-CONFIG_ATTR = "config"  # user attr an enqueued trial may carry: the full TrainConfig mapping it trains
 OFFICIAL_SCORE_METRIC = (
     "official score [mph], measured: the trial's trained net in the exact engine, site median of its engine's "
     "official protocol"
 )  # the study's metric name
-ENQUEUED_ATTR = "autotune:enqueued"  # system attr: the user attr keys a trial was enqueued with (kept by retries)
-RACE_OF = "race_of"  # user attr: the trial whose configuration this race run retrains with a fresh seed
-RACE_SEED = "race_seed"  # user attr: the race's fresh-seed index of the run
-RACE_FIELD = "race_field"  # study user attr: the race's entrants (trial numbers, best first), frozen at its start
-WARM_ATTR = "warm_start"  # user attr: where an enqueued warm-start trial comes from ("crowd:<id>")
-COPIED_ATTR = "copied_from"  # user attr: "<study>:<number>" of a trial copied in by --warm-start STUDY
-LADDER_TOP = "ladder_top"  # user attr: highest rung index an enqueued trial may climb (crowd: its trainIterations)
-PREDICTED_ATTR = "predicted_cost_s"  # user attr: the cost model's prediction, stored before the trial trains
-REFUSED_ATTR = "refused_draws"  # user attr: draws the cost gate refused before this trial's
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,14 +206,16 @@ def _owner_alive(owner: dict[str, Any]) -> bool:
 
 
 def _heartbeat_enabled(storage: BaseStorage) -> bool:
-    from optuna.storages._heartbeat import is_heartbeat_enabled
-
-    return is_heartbeat_enabled(storage)
+    """True for a storage with Optuna's heartbeats on (an ``RDBStorage`` given a heartbeat interval)."""
+    interval = getattr(storage, "get_heartbeat_interval", None)  # public on the storages that have heartbeats
+    return callable(interval) and interval() is not None
 
 
 @dataclasses.dataclass
 class _Running:
     trial: Trial
+    trial_id: int
+    """The storage's id of the trial (its system attrs and heartbeats are written by id)."""
     slot: int
     task: TrialTask
     started: float = dataclasses.field(default_factory=time.perf_counter)
@@ -265,6 +255,8 @@ class Driver:
         self.state_dir = state_dir if state_dir is not None else storages.artifact_dir.parent
         self.owner = _owner()
         self.study: optuna.Study | None = None
+        self.study_id: int | None = None
+        """The storage's id of the study (set by ``open_study``)."""
         self.counts = StudyCounts(budget=spec.study.n_trials)
         self.pool: Any = None
         self._running: dict[int, _Running] = {}  # slot -> trial
@@ -287,8 +279,8 @@ class Driver:
         previous = [s for s in storage.get_all_studies() if s.study_name == name]
         n_before = 0
         if previous:
-            n_before = len(storage.get_all_trials(previous[0]._study_id, deepcopy=False))
-            self._refuse_changed_space(previous[0].user_attrs.get("spec"))
+            n_before = len(storage.get_all_trials(storage.get_study_id_from_name(name), deepcopy=False))
+            self._refuse_changed_space(previous[0].user_attrs.get(keys.STUDY_SPEC))
         study = optuna.create_study(
             study_name=name,
             storage=storage,
@@ -297,10 +289,11 @@ class Driver:
             direction="maximize",
             load_if_exists=True,
         )
-        study.set_user_attr("spec", self.spec.to_dict())
+        study.set_user_attr(keys.STUDY_SPEC, self.spec.to_dict())
         if study.metric_names is None:  # what the value is (optuna-dashboard shows it); a replay study names its own
             study.set_metric_names([OFFICIAL_SCORE_METRIC])
         self.study = study
+        self.study_id = storage.get_study_id_from_name(name)
         self.recovered = self._fail_orphans(study)
         self._refresh_counts()
         return study
@@ -359,7 +352,8 @@ class Driver:
         """Enqueue the crowd prior and copy another study's measured trials, once per study."""
         assert self.study is not None
         attrs = self.study.user_attrs
-        if self.spec.warm_start.crowd and self.warm_configs and "warm_start:crowd" not in attrs:
+        crowd_done = f"{keys.WARM_STARTED}crowd"
+        if self.spec.warm_start.crowd and self.warm_configs and crowd_done not in attrs:
             n = 0
             ladder = Ladder(self.spec.ladder) if self.spec.ladder else None
             for w in self.warm_configs:
@@ -369,20 +363,20 @@ class Driver:
                     continue
                 params = space.encode(self.spec, w.config)
                 params, clipped = clip_params(self.spec, params)
-                user: dict[str, Any] = {WARM_ATTR: w.source}
+                user: dict[str, Any] = {keys.WARM_START: w.source}
                 if clipped:
-                    user["warm_start_clipped"] = clipped
+                    user[keys.WARM_START_CLIPPED] = clipped
                     self.warm_notes.append(f"{w.source}: clipped into the space: {'; '.join(clipped)}")
                 if ladder is not None:
-                    user[LADDER_TOP] = ladder.top_for(w.config.train_iterations)
+                    user[keys.LADDER_TOP] = ladder.top_for(w.config.train_iterations)
                 self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
                 n += 1
-            self.study.set_user_attr("warm_start:crowd", n)
+            self.study.set_user_attr(crowd_done, n)
             self.warm_notes.insert(0, f"crowd prior: {n} settings enqueued (each trained and measured)")
         source = self.spec.warm_start.study
-        if source and f"warm_start:{source}" not in attrs:
+        if source and f"{keys.WARM_STARTED}{source}" not in attrs:
             copied = self._copy_trials(source)
-            self.study.set_user_attr(f"warm_start:{source}", copied)
+            self.study.set_user_attr(f"{keys.WARM_STARTED}{source}", copied)
             self.warm_notes.append(f"{source}: {copied} measured trials copied into the sampler's history")
 
     def _copy_trials(self, source: str) -> int:
@@ -400,8 +394,8 @@ class Driver:
                 continue
             if clip_params(self.spec, dict(t.params))[1]:
                 continue  # outside this space: not this space's history
-            user = {k: v for k, v in t.user_attrs.items() if k in (CONFIG_ATTR, "seed", "rungs")}
-            user[COPIED_ATTR] = f"{source}:{t.number}"
+            user = {k: v for k, v in t.user_attrs.items() if k in (keys.CONFIG, keys.SEED, keys.RUNGS)}
+            user[keys.COPIED_FROM] = f"{source}:{t.number}"
             self.study.add_trial(optuna.trial.create_trial(
                 params=dict(t.params), distributions=dists, value=t.value, user_attrs=user,
                 intermediate_values=dict(t.intermediate_values),
@@ -423,22 +417,22 @@ class Driver:
 
     def _race_state(self) -> tuple[list[int], dict[tuple[int, int], float | None], set[tuple[int, int]]]:
         assert self.study is not None
-        field = self.study.user_attrs.get(RACE_FIELD)
+        field = self.study.user_attrs.get(keys.RACE_FIELD)
         if field is None:
             candidates = [
-                (t.number, float(t.value), t.user_attrs[CONFIG_ATTR])
+                (t.number, float(t.value), t.user_attrs[keys.CONFIG])
                 for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-                if t.value is not None and isinstance(t.user_attrs.get(CONFIG_ATTR), dict) and _original(t)
+                if t.value is not None and isinstance(t.user_attrs.get(keys.CONFIG), dict) and _original(t)
             ]  # fmt: skip
             field = [e.number for e in racing.entrants(candidates, self.spec.study.race_configs)]
-            self.study.set_user_attr(RACE_FIELD, field)
+            self.study.set_user_attr(keys.RACE_FIELD, field)
         results: dict[tuple[int, int], float | None] = {}
         launched: set[tuple[int, int]] = set()
         for t in self.study.get_trials(deepcopy=False):
-            if RACE_OF not in t.user_attrs:
+            if keys.RACE_OF not in t.user_attrs:
                 continue
-            key = (int(t.user_attrs[RACE_OF]), int(t.user_attrs[RACE_SEED]))
-            if t.state == TrialState.FAIL and t.user_attrs.get("retryable"):
+            key = (int(t.user_attrs[keys.RACE_OF]), int(t.user_attrs[keys.RACE_SEED]))
+            if t.state == TrialState.FAIL and t.user_attrs.get(keys.RETRYABLE):
                 continue  # its retry (same race_of / race_seed, carried by the enqueued attrs) stands for it
             launched.add(key)
             if t.state == TrialState.COMPLETE:
@@ -461,7 +455,8 @@ class Driver:
         source = self.study.get_trials(deepcopy=False)[run.race_of]
         seed = racing.race_seed(self.spec.study.seed, run.seed_index)
         self.study.enqueue_trial(dict(source.params), user_attrs={
-            CONFIG_ATTR: source.user_attrs[CONFIG_ATTR], "seed": seed, RACE_OF: run.race_of, RACE_SEED: run.seed_index,
+            keys.CONFIG: source.user_attrs[keys.CONFIG], keys.SEED: seed, keys.RACE_OF: run.race_of,
+            keys.RACE_SEED: run.seed_index,
         })  # fmt: skip
         return self._launch_next(slot)
 
@@ -472,56 +467,62 @@ class Driver:
         failed = []
         now = time.time()
         for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
-            owner = t.system_attrs.get(OWNER_ATTR)
+            owner = t.system_attrs.get(keys.DRIVER)
             if isinstance(owner, dict) and owner.get("host") == self.owner["host"]:
                 dead = not _owner_alive(owner)
             else:  # another host, or no owner: only a silent heartbeat proves it dead
-                beat = t.system_attrs.get(BEAT_ATTR)
+                beat = t.system_attrs.get(keys.HEARTBEAT)
                 dead = beat is not None and now - float(beat) > GRACE_PERIOD_S
                 if beat is None and not _heartbeat_enabled(storage) and t.datetime_start is not None:
                     dead = time.mktime(t.datetime_start.timetuple()) < now - GRACE_PERIOD_S
             if not dead:
                 continue
             who = f"{owner.get('host')}:{owner.get('pid')}" if isinstance(owner, dict) else "unknown"
-            storage.set_trial_user_attr(t._trial_id, "cause", f"driver lost: driver {who} stopped while the trial ran")
-            storage.set_trial_user_attr(t._trial_id, "retryable", True)
+            trial_id = self._trial_id(t.number)
+            storage.set_trial_user_attr(trial_id, keys.CAUSE, f"driver lost: driver {who} stopped while the trial ran")
+            storage.set_trial_user_attr(trial_id, keys.RETRYABLE, True)
             try:
-                storage.set_trial_state_values(t._trial_id, TrialState.FAIL)
+                storage.set_trial_state_values(trial_id, TrialState.FAIL)
                 failed.append(t.number)
             except optuna.exceptions.UpdateFinishedTrialError:  # another driver got there first
                 pass
         return failed
+
+    def _trial_id(self, number: int) -> int:
+        """The storage's id of trial ``number`` of this study (Optuna's public storage API)."""
+        assert self.study_id is not None
+        return self.storages.storage.get_trial_id_from_study_id_trial_number(self.study_id, number)
 
     def _enqueue_retries(self) -> None:
         """Enqueue one retry for every retryable failure that has none yet (and retries left)."""
         assert self.study is not None
         trials = self.study.get_trials(deepcopy=False)
         by_number = {t.number: t for t in trials}
-        retried = {t.user_attrs.get("retry_of") for t in trials}
+        retried = {t.user_attrs.get(keys.RETRY_OF) for t in trials}
         for t in trials:
             if t.state != TrialState.FAIL or t.number in retried or not self._retryable(t):
                 continue
             depth, cur = 0, t
-            while "retry_of" in cur.user_attrs and cur.user_attrs["retry_of"] in by_number:
+            while keys.RETRY_OF in cur.user_attrs and cur.user_attrs[keys.RETRY_OF] in by_number:
                 depth += 1
-                cur = by_number[cur.user_attrs["retry_of"]]
+                cur = by_number[cur.user_attrs[keys.RETRY_OF]]
             if depth >= self.spec.study.max_retries:
                 continue
-            seed = t.user_attrs.get("seed", trial_seed(self.spec.study.seed, cur.number))
-            given = {k: t.user_attrs[k] for k in t.system_attrs.get(ENQUEUED_ATTR, ()) if k in t.user_attrs}
-            self.study.enqueue_trial(t.params, user_attrs={**given, "retry_of": t.number, "seed": seed})
+            seed = t.user_attrs.get(keys.SEED, trial_seed(self.spec.study.seed, cur.number))
+            given = {k: t.user_attrs[k] for k in t.system_attrs.get(keys.ENQUEUED, ()) if k in t.user_attrs}
+            self.study.enqueue_trial(t.params, user_attrs={**given, keys.RETRY_OF: t.number, keys.SEED: seed})
 
     @staticmethod
     def _retryable(t: FrozenTrial) -> bool:
         # ours say so; a FAIL with no cause was failed by Optuna's heartbeat check (a dead driver)
-        return bool(t.user_attrs.get("retryable")) or "cause" not in t.user_attrs
+        return bool(t.user_attrs.get(keys.RETRYABLE)) or keys.CAUSE not in t.user_attrs
 
     def _refresh_counts(self) -> None:
         assert self.study is not None
         c = self.counts
-        trials = [t for t in self.study.get_trials(deepcopy=False) if COPIED_ATTR not in t.user_attrs]
+        trials = [t for t in self.study.get_trials(deepcopy=False) if keys.COPIED_FROM not in t.user_attrs]
         c.started = sum(1 for t in trials if _original(t) and t.state != TrialState.WAITING)
-        c.retries = sum(1 for t in trials if "retry_of" in t.user_attrs or RACE_OF in t.user_attrs)
+        c.retries = sum(1 for t in trials if keys.RETRY_OF in t.user_attrs or keys.RACE_OF in t.user_attrs)
         c.complete = sum(1 for t in trials if t.state == TrialState.COMPLETE)
         c.pruned = sum(1 for t in trials if t.state == TrialState.PRUNED)
         c.failed = sum(1 for t in trials if t.state == TrialState.FAIL)
@@ -638,18 +639,19 @@ class Driver:
             if budget is not None and self.counts.started >= budget:
                 return False
         trial = self.study.ask()
+        trial_id = self._trial_id(trial.number)
         storage = self.storages.storage
-        given = sorted(k for k in trial.user_attrs if k != "retry_of")  # what it was enqueued with
+        given = sorted(k for k in trial.user_attrs if k != keys.RETRY_OF)  # what it was enqueued with
         if given:
-            storage.set_trial_system_attr(trial._trial_id, ENQUEUED_ATTR, given)
-        storage.set_trial_system_attr(trial._trial_id, OWNER_ATTR, self.owner)
-        self._beat(trial)
-        seed = trial.user_attrs.get("seed")
+            storage.set_trial_system_attr(trial_id, keys.ENQUEUED, given)
+        storage.set_trial_system_attr(trial_id, keys.DRIVER, self.owner)
+        self._beat(trial_id)
+        seed = trial.user_attrs.get(keys.SEED)
         if seed is None:
             seed = trial_seed(self.spec.study.seed, trial.number)
-            trial.set_user_attr("seed", seed)
-        full = trial.user_attrs.get(CONFIG_ATTR)  # an enqueued full config (crowd replay) wins over the params
-        race = RACE_OF in trial.user_attrs
+            trial.set_user_attr(keys.SEED, seed)
+        full = trial.user_attrs.get(keys.CONFIG)  # an enqueued full config (crowd replay) wins over the params
+        race = keys.RACE_OF in trial.user_attrs
         try:
             params = space.sample(trial, self.spec)
             if full is not None:
@@ -658,7 +660,7 @@ class Driver:
                 predicted: Plan | None = Plan((config.train_iterations,), (self._model().predict(config),))
             else:
                 configs = self._rung_configs(params)
-                top = trial.user_attrs.get(LADDER_TOP)
+                top = trial.user_attrs.get(keys.LADDER_TOP)
                 predicted = plan(configs, self._model(), self.spec.study.cost_cap_s, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
@@ -668,15 +670,15 @@ class Driver:
                 rungs = predicted.budgets if self.spec.ladder else ()
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study
             cause = str(exc) if isinstance(exc, _Refused) else f"invalid configuration: {exc}"
-            trial.set_user_attr("cause", cause)
+            trial.set_user_attr(keys.CAUSE, cause)
             self.study.tell(trial, state=TrialState.FAIL)
             self._notify()
             return True
         assert predicted is not None
-        trial.set_user_attr(PREDICTED_ATTR, predicted.total_s)
-        trial.set_user_attr("predicted_rung_s", list(predicted.costs))
+        trial.set_user_attr(keys.PREDICTED_COST, predicted.total_s)
+        trial.set_user_attr(keys.PREDICTED_RUNG_COSTS, list(predicted.costs))
         if isinstance(self.study.sampler, CostGatedSampler):
-            trial.set_user_attr(REFUSED_ATTR, self.study.sampler.refused(trial.number))
+            trial.set_user_attr(keys.REFUSED_DRAWS, self.study.sampler.refused(trial.number))
         e = self.spec.evaluation
         st = self.spec.study
         task = TrialTask(
@@ -686,9 +688,9 @@ class Driver:
             timeout_s=st.trial_timeout_s, rungs=rungs,
             deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,
         )  # fmt: skip
-        trial.set_user_attr("worker", self.pool.worker_of(slot))
-        trial.set_user_attr("ray_node", self.pool.node_of(slot))
-        self._running[slot] = _Running(trial, slot, task, silent=race)
+        trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
+        trial.set_user_attr(keys.RAY_NODE, self.pool.node_of(slot))
+        self._running[slot] = _Running(trial, trial_id, slot, task, silent=race)
         self.pool.submit(slot, task)
         self._notify()
         return True
@@ -730,11 +732,11 @@ class Driver:
                         artifact_store=self.storages.artifacts, file_path=str(path), study_or_trial=trial,
                         mimetype="application/json",
                     )  # fmt: skip
-            trial.set_user_attr("artifact_rung_nets", ids)
+            trial.set_user_attr(keys.ARTIFACT_RUNG_NETS, ids)
         if outcome.state == COMPLETE:
             with tempfile.TemporaryDirectory() as tmp:
-                for key, name, text in (("artifact_net_json", "net.json", outcome.net_json),
-                                        ("artifact_net_js", "net.js", outcome.net_js)):  # fmt: skip
+                for key, name, text in ((keys.ARTIFACT_NET_JSON, "net.json", outcome.net_json),
+                                        (keys.ARTIFACT_NET_JS, "net.js", outcome.net_js)):  # fmt: skip
                     if text is None:
                         continue
                     path = Path(tmp) / name
@@ -753,8 +755,8 @@ class Driver:
 
     def _fail(self, trial: Trial, cause: str, *, retryable: bool) -> None:
         assert self.study is not None
-        trial.set_user_attr("cause", cause)
-        trial.set_user_attr("retryable", retryable)
+        trial.set_user_attr(keys.CAUSE, cause)
+        trial.set_user_attr(keys.RETRYABLE, retryable)
         self.study.tell(trial, state=TrialState.FAIL)
 
     def _abandon_running(self, cause: str) -> None:
@@ -767,35 +769,35 @@ class Driver:
         self._running.clear()
 
     # -- heartbeats -------------------------------------------------------------------------
-    def _beat(self, trial: Trial) -> None:
+    def _beat(self, trial_id: int) -> None:
         storage = self.storages.storage
         if _heartbeat_enabled(storage):
-            storage.record_heartbeat(trial._trial_id)  # type: ignore[attr-defined]
+            storage.record_heartbeat(trial_id)  # type: ignore[attr-defined]
         else:
-            storage.set_trial_system_attr(trial._trial_id, BEAT_ATTR, time.time())
+            storage.set_trial_system_attr(trial_id, keys.HEARTBEAT, time.time())
 
     def _heartbeat(self) -> None:
         self._last_beat = time.perf_counter()
         for run in self._running.values():
-            self._beat(run.trial)
+            self._beat(run.trial_id)
 
 
 def _observations(t: FrozenTrial) -> list[Observation]:
     """A finished trial's rungs as cost observations (work terms, wall seconds); a single training as one."""
-    cfg = t.user_attrs.get(CONFIG_ATTR)
-    if not isinstance(cfg, dict) or COPIED_ATTR in t.user_attrs:
+    cfg = t.user_attrs.get(keys.CONFIG)
+    if not isinstance(cfg, dict) or keys.COPIED_FROM in t.user_attrs:
         return []
     try:
         top = TrainConfig.from_mapping(cfg)
     except ConfigError:
         return []
     out = []
-    for rung in t.user_attrs.get("rungs") or ():
-        seconds = rung.get("seconds")
+    for rung in t.user_attrs.get(keys.RUNGS) or ():
+        seconds = rung.get(keys.SECONDS)
         if isinstance(seconds, (int, float)):
-            out.append(Observation(tuple(features(rung_config(top, int(rung["budget"])))), float(seconds)))
-    if not t.user_attrs.get("rungs") and t.state == TrialState.COMPLETE:
-        wall = t.user_attrs.get("trial_wall_seconds")
+            out.append(Observation(tuple(features(rung_config(top, int(rung[keys.BUDGET])))), float(seconds)))
+    if not t.user_attrs.get(keys.RUNGS) and t.state == TrialState.COMPLETE:
+        wall = t.user_attrs.get(keys.TRIAL_WALL_SECONDS)
         if isinstance(wall, (int, float)):
             out.append(Observation(tuple(features(top)), float(wall)))
     return out
@@ -807,7 +809,7 @@ class _Refused(Exception):
 
 def _original(t: FrozenTrial) -> bool:
     """A trial that uses budget: not a retry, not a race run, not copied history."""
-    return not any(k in t.user_attrs for k in ("retry_of", RACE_OF, COPIED_ATTR))
+    return not any(k in t.user_attrs for k in (keys.RETRY_OF, keys.RACE_OF, keys.COPIED_FROM))
 
 
 def clip_params(spec: StudySpec, params: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:

@@ -29,6 +29,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from autotune.search import keys
+
 __all__ = [
     "TrialTask", "TrialOutcome", "Report", "run_trial", "worker_id", "process_start", "process_alive",
     "COMPLETE", "PRUNED", "FAILED",
@@ -139,15 +141,17 @@ def run_trial(task: TrialTask, report: Report) -> TrialOutcome:
     """Train ``task``'s config from its seed, forwarding each quick score to ``report``; score it if it ends."""
     t0 = time.perf_counter()
     c0 = time.process_time()
-    attrs: dict[str, Any] = {"source": "autotune", "seed": int(task.seed), "worker": worker_id(), "diverged": False}
+    attrs: dict[str, Any] = {
+        keys.SOURCE: keys.SOURCE_AUTOTUNE, keys.SEED: int(task.seed), keys.WORKER: worker_id(), keys.DIVERGED: False,
+    }  # fmt: skip
 
     rung_nets: dict[int, str] = {}
 
     def finish(state: str, value: float | None, cause: str | None, **texts: str | None) -> TrialOutcome:
         if cause is not None:
-            attrs["cause"] = cause
+            attrs[keys.CAUSE] = cause
         cpu, wall = time.process_time() - c0, time.perf_counter() - t0
-        attrs.update(trial_cpu_seconds=cpu, trial_wall_seconds=wall)  # the worker's busy time (overhead bench)
+        attrs.update({keys.TRIAL_CPU_SECONDS: cpu, keys.TRIAL_WALL_SECONDS: wall})  # busy time (overhead bench)
         return TrialOutcome(
             task.number, state, value, cause, attrs, texts.get("net_json"), texts.get("net_js"), dict(rung_nets),
             cpu_seconds=cpu, wall_seconds=wall,
@@ -203,11 +207,11 @@ def _run_ladder(
     top = TrainConfig.from_mapping(task.config)
     protocol = task.final_protocol or official_protocol(top)
     rungs: list[dict[str, Any]] = []
-    attrs.update(
-        config=top.to_mapping(), settings=top.to_deepqlearn(), input_size=top.net_inputs, num_states=top.num_states,
-        param_count=top.param_count, official_protocol=protocol, ladder=list(task.rungs), rungs=rungs,
-        frames_simulated=0,
-    )  # fmt: skip
+    attrs.update({
+        keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn(), keys.INPUT_SIZE: top.net_inputs,
+        keys.NUM_STATES: top.num_states, keys.PARAM_COUNT: top.param_count, keys.OFFICIAL_PROTOCOL: protocol,
+        keys.LADDER: list(task.rungs), keys.RUNGS: rungs, keys.FRAMES_SIMULATED: 0,
+    })  # fmt: skip
     value: float | None = None
     net_json = net_js = None
     for r, budget in enumerate(task.rungs):
@@ -220,9 +224,9 @@ def _run_ladder(
             limits.check(f"{where}: training at {done:,} of {total:,} frames")
 
         result = train(config, task.seed, report_points=task.report_points, quick_eval=False, progress=progress)
-        attrs["frames_simulated"] += result.frames
+        attrs[keys.FRAMES_SIMULATED] += result.frames
         if result.diverged:
-            attrs["diverged"] = True
+            attrs[keys.DIVERGED] = True
             return finish(PRUNED, None, f"diverged at {where}: {result.diverged_reason}")
         convnet = result.convnet()
         te = time.perf_counter()
@@ -231,29 +235,30 @@ def _run_ladder(
             limits.check(f"{where}: official evaluation at {done:,} of {total:,} frames")
 
         ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress)
-        attrs["frames_simulated"] += ev.runs * ev.frames
+        attrs[keys.FRAMES_SIMULATED] += ev.runs * ev.frames
         score = float(ev.median_site)
         if not math.isfinite(score):  # pragma: no cover - scores are finite speeds
             return finish(FAILED, None, f"official score is not finite at {where}: {score!r}")
         net_json = dumps_net(convnet)
         rung_nets[budget] = net_json
         rungs.append({
-            "budget": int(budget), "score": score, "seconds": time.perf_counter() - t_rung,
-            "train_seconds": result.train_seconds, "eval_seconds": time.perf_counter() - te,
-            "official_mean": ev.mean, "official_std": ev.std, "frames": int(result.frames),
+            keys.BUDGET: int(budget), keys.SCORE: score, keys.SECONDS: time.perf_counter() - t_rung,
+            keys.TRAIN_SECONDS: result.train_seconds, keys.EVAL_SECONDS: time.perf_counter() - te,
+            keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std, keys.FRAMES: int(result.frames),
         })  # fmt: skip
-        attrs["curve"] = [
-            {"step": k, "frames": int(p.frames), "quick_score": None, "mean_reward": _finite(p.mean_reward),
-             "loss": _finite(p.loss)} for k, p in enumerate(result.curve)
+        attrs[keys.CURVE] = [
+            {keys.STEP: k, keys.FRAMES: int(p.frames), keys.QUICK_SCORE: None, keys.MEAN_REWARD: _finite(p.mean_reward),
+             keys.LOSS: _finite(p.loss)} for k, p in enumerate(result.curve)
         ]  # fmt: skip
         value = score
         step = budget // task.rungs[0]
-        if report(step, attrs["frames_simulated"], score) and r < len(task.rungs) - 1:
+        if report(step, attrs[keys.FRAMES_SIMULATED], score) and r < len(task.rungs) - 1:
             return finish(PRUNED, None, f"pruned after rung {r} ({budget:,} iterations, {score:.2f} mph) by the pruner")
         if r == len(task.rungs) - 1:
             net_js = export_netjs(convnet, config.settings)
-            attrs.update(official_mean=ev.mean, official_std=ev.std, train_seconds=result.train_seconds,
-                         eval_seconds=rungs[-1]["eval_seconds"])  # fmt: skip
+            attrs.update({keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std,
+                          keys.TRAIN_SECONDS: result.train_seconds,
+                          keys.EVAL_SECONDS: rungs[-1][keys.EVAL_SECONDS]})  # fmt: skip
     assert value is not None
     return finish(COMPLETE, value, None, net_json=net_json, net_js=net_js)
 
@@ -270,21 +275,21 @@ def _run(
 
     config = TrainConfig.from_mapping(task.config)
     protocol = task.final_protocol or official_protocol(config)
-    attrs.update(
-        config=config.to_mapping(),
-        settings=config.to_deepqlearn(),
-        input_size=config.net_inputs,
-        num_states=config.num_states,
-        param_count=config.param_count,
-        official_protocol=protocol,
-    )
+    attrs.update({
+        keys.CONFIG: config.to_mapping(),
+        keys.SETTINGS: config.to_deepqlearn(),
+        keys.INPUT_SIZE: config.net_inputs,
+        keys.NUM_STATES: config.num_states,
+        keys.PARAM_COUNT: config.param_count,
+        keys.OFFICIAL_PROTOCOL: protocol,
+    })  # fmt: skip
     limits = _Limits.of(task, t0)
     curve: list[dict[str, Any]] = []
-    attrs["curve"] = curve
+    attrs[keys.CURVE] = curve
     pruned_at: list[int] = []
 
     def reporter(k: int, frames: int, quick_score: float) -> bool:
-        curve.append({"step": k, "frames": int(frames), "quick_score": _finite(quick_score)})
+        curve.append({keys.STEP: k, keys.FRAMES: int(frames), keys.QUICK_SCORE: _finite(quick_score)})
         limits.check(f"at report {k}, {frames:,} frames")
         if report(k, int(frames), float(quick_score)):
             pruned_at.append(k)
@@ -301,12 +306,12 @@ def _run(
         )  # fmt: skip
     finally:
         quick_frames = len(curve) * task.quick_runs * task.quick_frames
-        attrs["frames_simulated"] = quick_frames  # + training frames below (kept right on a timeout too)
-    attrs["frames_simulated"] = result.frames + quick_frames
-    attrs["train_seconds"] = result.train_seconds
-    attrs["quick_eval_seconds"] = result.wall_seconds - result.train_seconds
+        attrs[keys.FRAMES_SIMULATED] = quick_frames  # + training frames below (kept right on a timeout too)
+    attrs[keys.FRAMES_SIMULATED] = result.frames + quick_frames
+    attrs[keys.TRAIN_SECONDS] = result.train_seconds
+    attrs[keys.QUICK_EVAL_SECONDS] = result.wall_seconds - result.train_seconds
     if result.diverged:
-        attrs["diverged"] = True
+        attrs[keys.DIVERGED] = True
         return finish(PRUNED, None, f"diverged: {result.diverged_reason}")
     if pruned_at:
         return finish(PRUNED, None, f"pruned at step {pruned_at[0]} by the pruner")
@@ -322,9 +327,9 @@ def _run(
     ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress)
     net_json = dumps_net(convnet)
     net_js = export_netjs(convnet, config.settings)
-    attrs["eval_seconds"] = time.perf_counter() - te
-    attrs["frames_simulated"] += ev.runs * ev.frames
-    attrs.update(official_mean=ev.mean, official_std=ev.std)
+    attrs[keys.EVAL_SECONDS] = time.perf_counter() - te
+    attrs[keys.FRAMES_SIMULATED] += ev.runs * ev.frames
+    attrs.update({keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std})
     value = ev.median_site
     if not math.isfinite(value):  # pragma: no cover - scores are finite speeds
         return finish(FAILED, None, f"official score is not finite: {value!r}")

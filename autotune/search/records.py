@@ -1,8 +1,12 @@
-"""Read-only views of a study's trial records: summary, best trial, export of its network, retraining.
+"""The one read API for studies: plain, frozen records of studies and trials, summaries, exports, reproductions.
 
-The records follow the team's trial contract (user attrs ``config``, ``settings``, ``seed``,
-``curve``, ``frames_simulated``, ``official_*``, ``artifact_net_json`` / ``artifact_net_js``, …).
-Everything here reads a storage opened by ``storage.open_storage``; nothing writes to it.
+Everything above ``autotune.search`` (the reports, the commands) reads studies here and gets plain
+data — ``StudyRecord`` / ``TrialRecord`` (numbers, state names, values, params with their
+``Distribution``, user attrs, times), artifacts' text — never an Optuna object: Optuna stays
+inside ``autotune.search``. The records follow the trial contract (user attrs named in
+``autotune.search.keys``: ``config``, ``settings``, ``seed``, ``curve``, ``frames_simulated``,
+``official_*``, ``artifact_net_json`` / ``artifact_net_js``, …). Everything here reads a storage
+opened by ``storage.open_storage``; nothing writes to it.
 """
 
 from __future__ import annotations
@@ -10,34 +14,53 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import optuna
 from optuna.artifacts import download_artifact
+from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import FrozenTrial, TrialState
 
-from autotune.search.storage import Storages, load_study
+from autotune.search import keys
+from autotune.search.storage import Storages, UnknownStudyError, load_study, open_storage, study_names
 from sim.config import ConfigError
 
 __all__ = [
+    "STATES",
+    "FINISHED_STATES",
+    "Distribution",
+    "TrialRecord",
+    "StudyRecord",
     "RecordError",
     "Reproduction",
+    "read_study",
+    "read_study_if_present",
+    "find_study",
+    "snapshot",
+    "artifact_text",
     "best_trial_record",
     "export_best",
     "export_trial",
+    "format_summary",
     "rescore_trial",
     "retrain_trial",
+    "race_summary",
+    "study_resources",
     "study_summary",
     "trial_record",
 ]
 
-FINISHED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)
+STATES: tuple[str, ...] = tuple(state.name for state in TrialState)
+"""Every trial state's name: RUNNING, COMPLETE, PRUNED, FAIL, WAITING."""
+FINISHED_STATES: tuple[str, ...] = ("COMPLETE", "PRUNED", "FAIL")
+"""The states a trial ends in."""
 _RECORD_ATTRS = (
-    "source", "seed", "config", "settings", "input_size", "num_states", "param_count", "frames_simulated",
-    "train_seconds", "eval_seconds", "official_protocol", "official_mean", "official_std", "diverged", "cause",
-    "worker", "retry_of", "artifact_net_json", "artifact_net_js",
+    keys.SOURCE, keys.SEED, keys.CONFIG, keys.SETTINGS, keys.INPUT_SIZE, keys.NUM_STATES, keys.PARAM_COUNT,
+    keys.FRAMES_SIMULATED, keys.TRAIN_SECONDS, keys.EVAL_SECONDS, keys.OFFICIAL_PROTOCOL, keys.OFFICIAL_MEAN,
+    keys.OFFICIAL_STD, keys.DIVERGED, keys.CAUSE, keys.WORKER, keys.RETRY_OF, keys.ARTIFACT_NET_JSON,
+    keys.ARTIFACT_NET_JS,
 )  # fmt: skip
 
 
@@ -45,123 +68,154 @@ class RecordError(ConfigError):
     """A trial record that is missing or incomplete (no finished trial, no such number, no artifact)."""
 
 
-def _iso(t: dt.datetime | None) -> str | None:
-    return t.isoformat(timespec="seconds") if t is not None else None
+# --------------------------------------------------------------------------------------------
+# plain records
+# --------------------------------------------------------------------------------------------
 
 
-def study_summary(storages: Storages, study_name: str) -> dict[str, Any]:
-    """Counts by state, the best trial, and throughput over the study's wall span (JSON-ready).
+@dataclasses.dataclass(frozen=True)
+class Distribution:
+    """The range a parameter was drawn from, as Optuna stored it (plain data)."""
 
-    Throughput: finished trials (COMPLETE, PRUNED, FAIL) per hour and frames simulated per second
-    (user attr ``frames_simulated``), both over the span from the first trial's start to the last
-    finish — wall time of the whole study, all workers together, pauses between launches included.
-    """
-    study = load_study(storages, study_name)
-    trials = study.get_trials(deepcopy=False)
-    counts = {state.name: 0 for state in TrialState}
-    for t in trials:
-        counts[t.state.name] += 1
-    finished = [t for t in trials if t.state in FINISHED]
-    starts = [t.datetime_start for t in trials if t.datetime_start is not None]
-    ends = [t.datetime_complete for t in finished if t.datetime_complete is not None]
-    first = min(starts) if starts else None
-    last = max(ends) if ends else None
-    span = (last - first).total_seconds() if first is not None and last is not None else 0.0
-    frames = sum(int(t.user_attrs.get("frames_simulated", 0) or 0) for t in finished)
+    kind: str
+    """'int', 'float' or 'categorical'."""
+    low: float | None = None
+    """Smallest value (inclusive); None for categorical."""
+    high: float | None = None
+    """Largest value (inclusive); None for categorical."""
+    log: bool = False
+    """Drawn uniformly in log(value)."""
+    step: float | None = None
+    """Grid step from low (ints: 1 unless set); None: continuous."""
+    choices: tuple[Any, ...] = ()
+    """The categories (categorical only)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrialRecord:
+    """One trial as stored: its state, value, parameters and user attrs (the trial contract, ``keys``)."""
+
+    number: int
+    """The trial's number in its study (0, 1, …)."""
+    state: str
+    """One of ``STATES``."""
+    value: float | None
+    """The objective: the official score [mph] of a COMPLETE trial; None otherwise."""
+    params: Mapping[str, Any]
+    """Sampled parameters, in sampling coordinates (``one_minus_gamma``, ``n_layers``, …)."""
+    distributions: Mapping[str, Distribution]
+    """The range each parameter was drawn from."""
+    user_attrs: Mapping[str, Any]
+    """The trial record (keys in ``autotune.search.keys``)."""
+    datetime_start: dt.datetime | None = None
+    """When the trial started (local time, as Optuna stores it)."""
+    datetime_complete: dt.datetime | None = None
+    """When it finished (None while it runs or waits)."""
+
+    @property
+    def duration_s(self) -> float | None:
+        """Wall time from start to finish [s]."""
+        if self.datetime_start is None or self.datetime_complete is None:
+            return None
+        return (self.datetime_complete - self.datetime_start).total_seconds()
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyRecord:
+    """A study as stored: name, direction, user attrs and every trial in number order."""
+
+    name: str
+    direction: str
+    """'MAXIMIZE' (every autotune study: scores) or 'MINIMIZE'."""
+    user_attrs: Mapping[str, Any]
+    """Study user attrs (``keys.STUDY_SPEC``, ``keys.SOURCE``, …)."""
+    trials: tuple[TrialRecord, ...]
+    """Every trial, by number."""
+    best_number: int | None = None
+    """The best COMPLETE trial's number as Optuna ranks it; None before one completes."""
+
+    @property
+    def best(self) -> TrialRecord | None:
+        """The best COMPLETE trial (None before one completes)."""
+        return None if self.best_number is None else self.trials[self.best_number]
+
+    def with_states(self, *states: str) -> list[TrialRecord]:
+        """The trials in any of ``states`` (names of ``STATES``), by number."""
+        return [t for t in self.trials if t.state in states]
+
+
+def _distribution(d: BaseDistribution) -> Distribution:
+    if isinstance(d, CategoricalDistribution):
+        return Distribution("categorical", choices=tuple(d.choices))
+    if isinstance(d, IntDistribution):
+        return Distribution("int", d.low, d.high, d.log, d.step)
+    if isinstance(d, FloatDistribution):
+        return Distribution("float", d.low, d.high, d.log, d.step)
+    raise TypeError(f"unsupported Optuna distribution {type(d).__name__}")  # pragma: no cover - Optuna's three
+
+
+def to_optuna_distribution(d: Distribution) -> BaseDistribution:
+    """The Optuna distribution a ``Distribution`` describes (for writers inside ``autotune.search``)."""
+    if d.kind == "categorical":
+        return CategoricalDistribution(d.choices)
+    assert d.low is not None and d.high is not None
+    if d.kind == "int":
+        return IntDistribution(int(d.low), int(d.high), log=d.log, step=int(d.step or 1))
+    return FloatDistribution(float(d.low), float(d.high), log=d.log, step=d.step)
+
+
+def _trial(t: FrozenTrial) -> TrialRecord:
+    return TrialRecord(
+        number=t.number,
+        state=t.state.name,
+        value=t.value,
+        params=dict(t.params),
+        distributions={k: _distribution(d) for k, d in t.distributions.items()},
+        user_attrs=dict(t.user_attrs),
+        datetime_start=t.datetime_start,
+        datetime_complete=t.datetime_complete,
+    )
+
+
+def snapshot(study: optuna.Study) -> StudyRecord:
+    """An Optuna study as a plain ``StudyRecord`` (what ``read_study`` returns; tests pass in-memory studies)."""
     best = _best(study)
-    best_out: dict[str, Any] | None = None
-    if best is not None:
-        reached = (best.datetime_complete - first).total_seconds() if best.datetime_complete and first else None
-        best_out = {"number": best.number, "value": best.value, "params": best.params, "reached_s": reached}
-    done = counts["COMPLETE"] + counts["PRUNED"]
-    return {
-        "study": study_name,
-        "storage": storages.url,
-        "direction": study.direction.name,
-        "n_trials": len(trials),
-        "states": counts,
-        "prune_rate": counts["PRUNED"] / done if done else None,
-        "best": best_out,
-        "first_start": _iso(first),
-        "last_finish": _iso(last),
-        "wall_seconds": span,
-        "trials_per_hour": len(finished) / span * 3600.0 if span > 0 else None,
-        "frames_simulated": frames,
-        "frames_per_second": frames / span if span > 0 else None,
-    }
+    return StudyRecord(
+        name=study.study_name,
+        direction=study.direction.name,
+        user_attrs=dict(study.user_attrs),
+        trials=tuple(_trial(t) for t in study.get_trials(deepcopy=False)),
+        best_number=None if best is None else best.number,
+    )
 
 
-def _best(study: optuna.Study) -> FrozenTrial | None:
+def read_study(storages: Storages, study_name: str) -> StudyRecord:
+    """The stored study ``study_name`` as plain records; ``UnknownStudyError`` (nearest names) if absent."""
+    return snapshot(load_study(storages, study_name))
+
+
+def read_study_if_present(storages: Storages, study_name: str) -> StudyRecord | None:
+    """``read_study``, or None when the storage holds no study of that name."""
+    return read_study(storages, study_name) if study_name in study_names(storages) else None
+
+
+def find_study(storage: str, study_name: str) -> StudyRecord | None:
+    """The study ``study_name`` if ``storage`` (``--storage``; '' = its embedded journal) holds it, else None.
+
+    Creates nothing: a storage that does not exist yet holds no study.
+    """
     try:
-        return study.best_trial
-    except ValueError:  # no COMPLETE trial yet
+        storages = open_storage(storage, study_name, heartbeat=False, create=False)
+    except UnknownStudyError:  # no journal file: no study
         return None
+    return read_study_if_present(storages, study_name)
 
 
-def _record(trial: FrozenTrial) -> dict[str, Any]:
-    attrs = trial.user_attrs
-    out: dict[str, Any] = {
-        "number": trial.number,
-        "state": trial.state.name,
-        "value": trial.value,
-        "params": trial.params,
-        "datetime_start": _iso(trial.datetime_start),
-        "datetime_complete": _iso(trial.datetime_complete),
-        "duration_s": trial.duration.total_seconds() if trial.duration is not None else None,
-    }
-    out.update({k: attrs[k] for k in _RECORD_ATTRS if k in attrs})
-    out["curve"] = attrs.get("curve", [])
-    return out
+def artifact_text(storages: Storages, trial: TrialRecord, key: str) -> str | None:
+    """The text of the artifact whose id the trial stores under user attr ``key`` (None: no such attr).
 
-
-def trial_record(storages: Storages, study_name: str, number: int) -> dict[str, Any]:
-    """Trial ``number``'s record: state, value, params and the contract's user attrs (JSON-ready)."""
-    return _record(_trial(load_study(storages, study_name), number))
-
-
-def best_trial_record(storages: Storages, study_name: str) -> dict[str, Any]:
-    """The best COMPLETE trial's record; ``RecordError`` when the study has none yet."""
-    study = load_study(storages, study_name)
-    best = _best(study)
-    if best is None:
-        raise RecordError(f"study '{study_name}' in '{storages.url}': no COMPLETE trial yet; nothing to show")
-    return _record(best)
-
-
-def _trial(study: optuna.Study, number: int) -> FrozenTrial:
-    trials = study.get_trials(deepcopy=False)
-    if not 0 <= number < len(trials):
-        raise RecordError(
-            f"study '{study.study_name}': no trial {number} (trials are numbered 0 … {len(trials) - 1})"
-            if trials
-            else f"study '{study.study_name}': no trial {number} (the study has no trials)"
-        )
-    trial = trials[number]
-    assert trial.number == number
-    return trial
-
-
-def export_trial(storages: Storages, study_name: str, number: int, out_dir: str | Path) -> dict[str, Path]:
-    """Write trial ``number``'s ``net.json``, ``net.config.json`` and ``net.js`` into ``out_dir``.
-
-    The net comes from the trial's ``artifact_net_json`` artifact and ``net.js`` from
-    ``artifact_net_js`` (regenerated from the net and settings when that one is absent);
-    ``net.config.json`` is the net's DeepTraffic settings in the format ``autotune train`` writes
-    (``write_net``), rebuilt from the trial's stored ``config``.
+    ``RecordError`` when the id is there but the artifact store does not hold it.
     """
-    return _export(storages, _trial(load_study(storages, study_name), number), out_dir)
-
-
-def export_best(storages: Storages, study_name: str, out_dir: str | Path) -> dict[str, Path]:
-    """``export_trial`` of the best COMPLETE trial."""
-    study = load_study(storages, study_name)
-    best = _best(study)
-    if best is None:
-        raise RecordError(f"study '{study_name}' in '{storages.url}': no COMPLETE trial yet; nothing to export")
-    return _export(storages, best, out_dir)
-
-
-def _download(storages: Storages, trial: FrozenTrial, key: str) -> str | None:
     artifact_id = trial.user_attrs.get(key)
     if not artifact_id:
         return None
@@ -177,21 +231,137 @@ def _download(storages: Storages, trial: FrozenTrial, key: str) -> str | None:
         return path.read_text(encoding="utf-8")
 
 
-def _export(storages: Storages, trial: FrozenTrial, out_dir: str | Path) -> dict[str, Path]:
+def _iso(t: dt.datetime | None) -> str | None:
+    return t.isoformat(timespec="seconds") if t is not None else None
+
+
+def study_summary(storages: Storages, study_name: str) -> dict[str, Any]:
+    """Counts by state, the best trial, and throughput over the study's wall span (JSON-ready).
+
+    Throughput: finished trials (COMPLETE, PRUNED, FAIL) per hour and frames simulated per second
+    (user attr ``frames_simulated``), both over the span from the first trial's start to the last
+    finish — wall time of the whole study, all workers together, pauses between launches included.
+    """
+    study = read_study(storages, study_name)
+    trials = study.trials
+    counts = {state: 0 for state in STATES}
+    for t in trials:
+        counts[t.state] += 1
+    finished = study.with_states(*FINISHED_STATES)
+    starts = [t.datetime_start for t in trials if t.datetime_start is not None]
+    ends = [t.datetime_complete for t in finished if t.datetime_complete is not None]
+    first = min(starts) if starts else None
+    last = max(ends) if ends else None
+    span = (last - first).total_seconds() if first is not None and last is not None else 0.0
+    frames = sum(int(t.user_attrs.get(keys.FRAMES_SIMULATED, 0) or 0) for t in finished)
+    best = study.best
+    best_out: dict[str, Any] | None = None
+    if best is not None:
+        reached = (best.datetime_complete - first).total_seconds() if best.datetime_complete and first else None
+        best_out = {"number": best.number, "value": best.value, "params": dict(best.params), "reached_s": reached}
+    done = counts["COMPLETE"] + counts["PRUNED"]
+    return {
+        "study": study_name,
+        "storage": storages.url,
+        "direction": study.direction,
+        "n_trials": len(trials),
+        "states": counts,
+        "prune_rate": counts["PRUNED"] / done if done else None,
+        "best": best_out,
+        "first_start": _iso(first),
+        "last_finish": _iso(last),
+        "wall_seconds": span,
+        "trials_per_hour": len(finished) / span * 3600.0 if span > 0 else None,
+        keys.FRAMES_SIMULATED: frames,
+        "frames_per_second": frames / span if span > 0 else None,
+    }
+
+
+def _best(study: optuna.Study) -> FrozenTrial | None:
+    try:
+        return study.best_trial
+    except ValueError:  # no COMPLETE trial yet
+        return None
+
+
+def _record(trial: TrialRecord) -> dict[str, Any]:
+    attrs = trial.user_attrs
+    out: dict[str, Any] = {
+        "number": trial.number,
+        "state": trial.state,
+        "value": trial.value,
+        "params": dict(trial.params),
+        "datetime_start": _iso(trial.datetime_start),
+        "datetime_complete": _iso(trial.datetime_complete),
+        "duration_s": trial.duration_s,
+    }
+    out.update({k: attrs[k] for k in _RECORD_ATTRS if k in attrs})
+    out[keys.CURVE] = attrs.get(keys.CURVE, [])
+    return out
+
+
+def trial_record(storages: Storages, study_name: str, number: int) -> dict[str, Any]:
+    """Trial ``number``'s record: state, value, params and the contract's user attrs (JSON-ready)."""
+    return _record(_numbered(read_study(storages, study_name), number))
+
+
+def best_trial_record(storages: Storages, study_name: str) -> dict[str, Any]:
+    """The best COMPLETE trial's record; ``RecordError`` when the study has none yet."""
+    best = read_study(storages, study_name).best
+    if best is None:
+        raise RecordError(f"study '{study_name}' in '{storages.url}': no COMPLETE trial yet; nothing to show")
+    return _record(best)
+
+
+def _numbered(study: StudyRecord, number: int) -> TrialRecord:
+    trials = study.trials
+    if not 0 <= number < len(trials):
+        raise RecordError(
+            f"study '{study.name}': no trial {number} (trials are numbered 0 … {len(trials) - 1})"
+            if trials
+            else f"study '{study.name}': no trial {number} (the study has no trials)"
+        )
+    trial = trials[number]
+    assert trial.number == number
+    return trial
+
+
+def export_trial(storages: Storages, study_name: str, number: int, out_dir: str | Path) -> dict[str, Path]:
+    """Write trial ``number``'s ``net.json``, ``net.config.json`` and ``net.js`` into ``out_dir``.
+
+    The net comes from the trial's ``artifact_net_json`` artifact and ``net.js`` from
+    ``artifact_net_js`` (regenerated from the net and settings when that one is absent);
+    ``net.config.json`` is the net's DeepTraffic settings in the format ``autotune train`` writes
+    (``write_net``), rebuilt from the trial's stored ``config``.
+    """
+    return _export(storages, _numbered(read_study(storages, study_name), number), out_dir)
+
+
+def export_best(storages: Storages, study_name: str, out_dir: str | Path) -> dict[str, Path]:
+    """``export_trial`` of the best COMPLETE trial."""
+    best = read_study(storages, study_name).best
+    if best is None:
+        raise RecordError(f"study '{study_name}' in '{storages.url}': no COMPLETE trial yet; nothing to export")
+    return _export(storages, best, out_dir)
+
+
+def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path) -> dict[str, Path]:
     from autotune import TrainConfig, export_netjs, loads_net, write_net
 
-    text = _download(storages, trial, "artifact_net_json")
+    text = artifact_text(storages, trial, keys.ARTIFACT_NET_JSON)
     if text is None:
-        raise RecordError(f"trial {trial.number}: no trained network stored (user attr artifact_net_json missing)")
-    if "config" not in trial.user_attrs:
-        raise RecordError(f"trial {trial.number}: no training config stored (user attr config missing)")
+        raise RecordError(
+            f"trial {trial.number}: no trained network stored (user attr {keys.ARTIFACT_NET_JSON} missing)"
+        )
+    if keys.CONFIG not in trial.user_attrs:
+        raise RecordError(f"trial {trial.number}: no training config stored (user attr {keys.CONFIG} missing)")
     net = loads_net(text, where=f"trial {trial.number} net.json")
-    settings = TrainConfig.from_mapping(trial.user_attrs["config"]).settings
+    settings = TrainConfig.from_mapping(trial.user_attrs[keys.CONFIG]).settings
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"net.json": out / "net.json", "net.config.json": out / "net.config.json", "net.js": out / "net.js"}
     write_net(paths["net.json"], net, settings)  # net.json + net.config.json, as `autotune train` writes them
-    netjs = _download(storages, trial, "artifact_net_js")
+    netjs = artifact_text(storages, trial, keys.ARTIFACT_NET_JS)
     paths["net.js"].write_text(netjs if netjs is not None else export_netjs(net, settings), encoding="utf-8")
     return paths
 
@@ -252,15 +422,15 @@ class Reproduction:
         return {**dataclasses.asdict(self), "identical": self.identical}
 
 
-def _complete_trial(storages: Storages, study_name: str, number: int) -> tuple[optuna.Study, FrozenTrial]:
-    study = load_study(storages, study_name)
-    trial = _trial(study, number)
-    if trial.state != TrialState.COMPLETE or trial.value is None:
+def _complete_trial(storages: Storages, study_name: str, number: int) -> tuple[StudyRecord, TrialRecord]:
+    study = read_study(storages, study_name)
+    trial = _numbered(study, number)
+    if trial.state != "COMPLETE" or trial.value is None:
         raise RecordError(
-            f"study '{study_name}': trial {number} is {trial.state.name}; only COMPLETE trials have an official "
+            f"study '{study_name}': trial {number} is {trial.state}; only COMPLETE trials have an official "
             "score to reproduce"
         )
-    for key in ("config", "seed"):
+    for key in (keys.CONFIG, keys.SEED):
         if key not in trial.user_attrs:
             raise RecordError(f"study '{study_name}': trial {number} has no stored {key} (user attr '{key}')")
     return study, trial
@@ -273,16 +443,16 @@ def rescore_trial(storages: Storages, study_name: str, number: int) -> Reproduct
     from autotune import TrainConfig, evaluate_official, loads_net, official_protocol
 
     _, trial = _complete_trial(storages, study_name, number)
-    config = TrainConfig.from_mapping(trial.user_attrs["config"])
-    protocol = str(trial.user_attrs.get("official_protocol") or official_protocol(config))
-    text = _download(storages, trial, "artifact_net_json")
+    config = TrainConfig.from_mapping(trial.user_attrs[keys.CONFIG])
+    protocol = str(trial.user_attrs.get(keys.OFFICIAL_PROTOCOL) or official_protocol(config))
+    text = artifact_text(storages, trial, keys.ARTIFACT_NET_JSON)
     if text is None:
-        raise RecordError(f"trial {number}: no trained network stored (user attr artifact_net_json missing)")
+        raise RecordError(f"trial {number}: no trained network stored (user attr {keys.ARTIFACT_NET_JSON} missing)")
     t0 = time.perf_counter()
     ev = evaluate_official(loads_net(text, where=f"trial {number} net.json"), config, protocol=protocol)
     assert trial.value is not None
     return Reproduction(
-        study_name, number, float(trial.value), float(ev.median_site), protocol, int(trial.user_attrs["seed"]),
+        study_name, number, float(trial.value), float(ev.median_site), protocol, int(trial.user_attrs[keys.SEED]),
         "rescore", time.perf_counter() - t0,
     )  # fmt: skip
 
@@ -302,12 +472,12 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
     evaluation = _evaluation(study)
     task = TrialTask(
         number=number,
-        config=trial.user_attrs["config"],
-        seed=int(trial.user_attrs["seed"]),
+        config=trial.user_attrs[keys.CONFIG],
+        seed=int(trial.user_attrs[keys.SEED]),
         report_points=int(evaluation.get("report_points", TrialTask.report_points)),
         quick_runs=int(evaluation.get("quick_runs", TrialTask.quick_runs)),
         quick_frames=int(evaluation.get("quick_frames", TrialTask.quick_frames)),
-        final_protocol=str(trial.user_attrs.get("official_protocol") or evaluation.get("final_protocol") or ""),
+        final_protocol=str(trial.user_attrs.get(keys.OFFICIAL_PROTOCOL) or evaluation.get("final_protocol") or ""),
         timeout_s=None,
     )
     t0 = time.perf_counter()
@@ -319,23 +489,26 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
         )
     assert trial.value is not None
     return Reproduction(
-        study_name, number, float(trial.value), float(outcome.value), str(outcome.attrs["official_protocol"]),
+        study_name, number, float(trial.value), float(outcome.value), str(outcome.attrs[keys.OFFICIAL_PROTOCOL]),
         task.seed, "retrain", time.perf_counter() - t0,
     )  # fmt: skip
 
 
-def _evaluation(study: optuna.Study) -> dict[str, Any]:
-    """The [evaluation] table the study ran with (the driver stores the spec as study user attr ``spec``)."""
-    spec = study.user_attrs.get("spec")
-    evaluation = spec.get("evaluation") if isinstance(spec, dict) else None
-    return evaluation if isinstance(evaluation, dict) else {}
+def _spec_table(study: StudyRecord, table: str) -> dict[str, Any]:
+    """A table of the spec the study ran with (the driver stores it as study user attr ``spec``); {} if none."""
+    spec = study.user_attrs.get(keys.STUDY_SPEC)
+    found = spec.get(table) if isinstance(spec, dict) else None
+    return found if isinstance(found, dict) else {}
+
+
+def _evaluation(study: StudyRecord) -> dict[str, Any]:
+    """The [evaluation] table the study ran with."""
+    return _spec_table(study, "evaluation")
 
 
 def study_resources(storages: Storages, study_name: str) -> dict[str, Any]:
     """The [resources] table the study ran with ({} when the study has no stored spec)."""
-    spec = load_study(storages, study_name).user_attrs.get("spec")
-    resources = spec.get("resources") if isinstance(spec, dict) else None
-    return resources if isinstance(resources, dict) else {}
+    return _spec_table(read_study(storages, study_name), "resources")
 
 
 def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
@@ -346,15 +519,15 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     """
     from autotune.search import racing
 
-    study = load_study(storages, study_name)
-    field = study.user_attrs.get("race_field")
+    study = read_study(storages, study_name)
+    field = study.user_attrs.get(keys.RACE_FIELD)
     if not field:
         return None
-    trials = study.get_trials(deepcopy=False)
+    trials = study.trials
     results: dict[tuple[int, int], float | None] = {}
     for t in trials:
-        if "race_of" in t.user_attrs and t.state == TrialState.COMPLETE and t.value is not None:
-            results[(int(t.user_attrs["race_of"]), int(t.user_attrs["race_seed"]))] = float(t.value)
+        if keys.RACE_OF in t.user_attrs and t.state == "COMPLETE" and t.value is not None:
+            results[(int(t.user_attrs[keys.RACE_OF]), int(t.user_attrs[keys.RACE_SEED]))] = float(t.value)
     rows = []
     for st in racing.standings([int(n) for n in field], results):
         rows.append({"trial": st.number, "selecting_value": trials[st.number].value, "n": len(st.scores),

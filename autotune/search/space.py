@@ -5,7 +5,9 @@
 fixed-params trial or a test double. Params are in sampling coordinates — ``one_minus_gamma``
 on a log scale instead of gamma, ε's schedule as fractions of the budget in a ladder study — and
 ``to_config`` turns them into the real TrainConfig; ``encode`` is the inverse, so crowd submissions
-enter a study under the same names.
+enter a study under the same names. ``check`` is a loaded spec's last validation: its space's corners
+must map to configurations deepqlearn accepts. This module reads ``autotune.search.spec`` (the parsed
+tables); the spec never reads it.
 
 The layout is fixed-shape: ``n_layers``, then ``neurons_i`` / ``activation_i`` for EVERY i below the
 space's largest n_layers, of which the first n_layers are used. Every trial then has the same
@@ -33,9 +35,11 @@ from autotune.search.spec import (
     one_minus,
 )  # fmt: skip
 from sim import fields
+from sim.config import ConfigError
 
 __all__ = [
-    "DEFAULT_SPACE", "PAPER_SPACE", "Trial", "sample", "dimensions", "to_config", "encode", "active", "unencodable",
+    "DEFAULT_SPACE", "PAPER_SPACE", "Trial", "sample", "dimensions", "to_config", "check", "encode", "active",
+    "unencodable",
     "outside",
 ]  # fmt: skip
 
@@ -191,6 +195,57 @@ def to_config(spec: StudySpec, params: Mapping[str, Any], budget: int | None = N
             start = values.get("start_learn_threshold", TrainConfig().start_learn_threshold)
             values["start_learn_threshold"] = cap_start(int(start), int(exp), b)
     return build_config(spec.ruleset, values, cap_start=cap)
+
+
+def check(spec: StudySpec) -> StudySpec:
+    """``spec`` if its space maps to valid configurations, else ``SpecError`` naming the corner and the fix.
+
+    Probed: every parameter at its low corner, every one at its high corner (with [fixed]), and the
+    narrowest layer with each activation — where deepqlearn's own rules (an empty input, a 1-neuron
+    maxout layer, …) reject a combination the per-key ranges allow.
+    """
+    for label, params in _probe_points(spec):
+        try:
+            to_config(spec, params)
+        except ConfigError as exc:
+            raise SpecError(f"{spec.source}: [space] {label} of the space (with [fixed]) is rejected: "
+                            f"{' '.join(str(exc).split())}; narrow the range") from None  # fmt: skip
+    return spec
+
+
+def _probe_points(spec: StudySpec) -> list[tuple[str, dict[str, Any]]]:
+    """Params at the low and the high corner, and the narrowest layer with every activation."""
+    points: list[tuple[str, dict[str, Any]]] = []
+    for label, pick in (("the low corner", 0), ("the high corner", -1)):
+        params: dict[str, Any] = {}
+        for d in spec.space:
+            if d.name in LAYOUT:
+                continue
+            params[d.name] = _corner(d, pick)
+        if spec.searches_layout:
+            dims = spec.dimensions
+            params["n_layers"] = _corner(dims["n_layers"], pick)
+            for i in range(spec.max_layers):
+                params[f"neurons_{i}"] = _corner(dims["neurons"], pick)
+                params[f"activation_{i}"] = dims["activation"].choices[pick]
+        points.append((label, params))
+    if spec.searches_layout:
+        dims = spec.dimensions
+        if max(_corner(dims["n_layers"], 0), _corner(dims["n_layers"], -1)) >= 1:
+            narrow = _corner(dims["neurons"], 0)
+            for act in dims["activation"].choices:
+                params = {**points[0][1], "n_layers": 1, "neurons_0": narrow, "activation_0": act}
+                for i in range(1, spec.max_layers):
+                    params[f"neurons_{i}"], params[f"activation_{i}"] = narrow, act
+                points.append((f"neurons {narrow} with activation {act!r}", params))
+    return points
+
+
+def _corner(d: Dimension, pick: int) -> Any:
+    if d.kind == "categorical":
+        numeric = all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in d.choices)
+        return sorted(d.choices)[pick] if numeric else d.choices[pick]
+    return d.low if pick == 0 else d.high
 
 
 def _param_names(spec: StudySpec, params: Mapping[str, Any]) -> list[str]:

@@ -1,4 +1,4 @@
-"""A study spec: one TOML file → frozen, typed dataclasses, fully validated before any worker starts.
+"""A study spec: one TOML file → frozen, typed dataclasses, every table validated before any worker starts.
 
 Five tables, every key optional unless said otherwise::
 
@@ -15,6 +15,9 @@ Every problem raises ``SpecError`` with ONE line naming the file, the table, the
 (``study_configs/x.toml: [space] learning_rate: low 0.1 > high 0.01; swap them``), so the CLI can print
 it and exit 2 before Ray or a storage is touched. The [space] vocabulary (``PARAMS``) and the
 field bounds come from ``sim.fields`` — the one table of DeepTraffic settings — not from a copy here.
+This module only parses: turning parameters into configurations is ``autotune.search.space``'s job
+(it imports this module, never the other way round), and ``space.check(spec)`` is the last check of a
+loaded spec — the corners of its space, with [fixed], must build configurations deepqlearn accepts.
 
 ``start_learn_threshold`` must stay below ``experience_size`` (deepqlearn would never learn). When it
 is not in [fixed], every trial's value is capped at ``experience_size − 1`` (``space.to_config``):
@@ -650,7 +653,7 @@ def _check_value(
 
 
 def _check_combination(spec: StudySpec) -> None:
-    """Cross-table rules: nothing both fixed and searched, a complete layout, and buildable extremes."""
+    """Cross-table rules: nothing both fixed and searched, a complete layout, a threshold below the experience."""
     src = spec.source
     where = _Where(src, "space")
     fixed = spec.fixed_values
@@ -689,14 +692,6 @@ def _check_combination(spec: StudySpec) -> None:
             raise where.error("experience_size", f"can be {smallest} ≤ [fixed] start_learn_threshold "
                               f"{fixed['start_learn_threshold']}, so learning would never start",
                               f"raise experience_size.low above {fixed['start_learn_threshold']}")  # fmt: skip
-    from autotune.search import space  # the decoding lives there; imported here to keep one copy
-
-    for label, params in _probe_points(spec):
-        try:
-            space.to_config(spec, params)
-        except ConfigError as exc:
-            raise SpecError(f"{src}: [space] {label} of the space (with [fixed]) is rejected: {_one_line(str(exc))}; "
-                            "narrow the range") from None  # fmt: skip
 
 
 _LAYOUT_EXAMPLE = {
@@ -706,43 +701,8 @@ _LAYOUT_EXAMPLE = {
 }
 
 
-def _probe_points(spec: StudySpec) -> list[tuple[str, dict[str, Any]]]:
-    """Params at the low and the high corner, and the narrowest layer with every activation."""
-    points: list[tuple[str, dict[str, Any]]] = []
-    for label, pick in (("the low corner", 0), ("the high corner", -1)):
-        params: dict[str, Any] = {}
-        for d in spec.space:
-            if d.name in LAYOUT:
-                continue
-            params[d.name] = _corner(d, pick)
-        if spec.searches_layout:
-            dims = spec.dimensions
-            params["n_layers"] = _corner(dims["n_layers"], pick)
-            for i in range(spec.max_layers):
-                params[f"neurons_{i}"] = _corner(dims["neurons"], pick)
-                params[f"activation_{i}"] = dims["activation"].choices[pick]
-        points.append((label, params))
-    if spec.searches_layout:
-        dims = spec.dimensions
-        if max(_corner(dims["n_layers"], 0), _corner(dims["n_layers"], -1)) >= 1:
-            narrow = _corner(dims["neurons"], 0)
-            for act in dims["activation"].choices:
-                params = {**points[0][1], "n_layers": 1, "neurons_0": narrow, "activation_0": act}
-                for i in range(1, spec.max_layers):
-                    params[f"neurons_{i}"], params[f"activation_{i}"] = narrow, act
-                points.append((f"neurons {narrow} with activation {act!r}", params))
-    return points
-
-
-def _corner(d: Dimension, pick: int) -> Any:
-    if d.kind == "categorical":
-        numeric = all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in d.choices)
-        return sorted(d.choices)[pick] if numeric else d.choices[pick]
-    return d.low if pick == 0 else d.high
-
-
 # --------------------------------------------------------------------------------------------
-# building a TrainConfig (shared with space.to_config)
+# building a TrainConfig ([fixed] here, every trial's in space.to_config)
 # --------------------------------------------------------------------------------------------
 
 _TRAIN_DEFAULTS = {f.name: f.default for f in dataclasses.fields(TrainConfig)}

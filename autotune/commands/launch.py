@@ -18,7 +18,7 @@ import shlex
 import sys
 from typing import Any
 
-from autotune.cliutil import fail
+from sim.config import ConfigError
 
 EXIT_INTERRUPTED = 130
 
@@ -54,30 +54,27 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Validate everything, run the study, print the best trial; 0, 2 (bad input) or 130 (Ctrl-C)."""
+    """Validate everything, run the study, print the best trial; 0, or 130 (Ctrl-C); bad input raises ConfigError."""
+    from autotune.search import space
+    from autotune.search.driver import Driver, StudyCounts, WarmConfig
     from autotune.search.spec import load_spec
     from autotune.search.storage import open_storage
-    from sim.config import ConfigError
 
-    try:
-        spec = load_spec(args.config).with_overrides(
-            storage=args.storage, name=args.study_name, workers=args.workers, n_trials=args.n_trials,
-            timeout_s=args.timeout, warm_start=args.warm_start,
-        )  # fmt: skip
-        storages = open_storage(spec.study.storage, spec.study.name, artifacts=args.artifacts)
-        if args.address is not None:
-            _check_address(args.address)
-        from autotune.search.driver import Driver, StudyCounts, WarmConfig
+    spec = load_spec(args.config).with_overrides(
+        storage=args.storage, name=args.study_name, workers=args.workers, n_trials=args.n_trials,
+        timeout_s=args.timeout, warm_start=args.warm_start,
+    )  # fmt: skip
+    space.check(spec)  # the space's corners build valid configurations
+    storages = open_storage(spec.study.storage, spec.study.name, artifacts=args.artifacts)
+    if args.address is not None:
+        _check_address(args.address)
+    warm: tuple[WarmConfig, ...] = ()
+    if spec.warm_start.crowd:
+        from dashboards.crowd_prior import prior_settings
 
-        warm: tuple[WarmConfig, ...] = ()
-        if spec.warm_start.crowd:
-            from dashboards.crowd_prior import prior_settings
-
-            warm = tuple(WarmConfig(p.source, p.config) for p in prior_settings(spec.ruleset))
-        driver = Driver(spec, storages, address=args.address, warm_configs=warm)
-        driver.open_study()  # create or resume; the sampler is built here (a missing package fails now)
-    except ConfigError as exc:
-        return fail(str(exc).splitlines()[0])
+        warm = tuple(WarmConfig(p.source, p.config) for p in prior_settings(spec.ruleset))
+    driver = Driver(spec, storages, address=args.address, warm_configs=warm)
+    driver.open_study()  # create or resume; the sampler is built here (a missing package fails now)
 
     bar = None if args.quiet else _Bar(spec.study.name, spec.study.n_trials, spec.study.timeout_s)
     driver.on_warm_start = None if args.quiet else _print_warm_notes
@@ -88,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         print("interrupted: running trials failed (retryable); rerun the same command to resume", file=sys.stderr)
         return EXIT_INTERRUPTED
     except ConnectionError as exc:  # a Ray address that does not answer
-        return fail(f"--address {args.address}: cannot join the Ray cluster ({str(exc).splitlines()[0]})")
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"--address {args.address}: cannot join the Ray cluster ({first})") from None
     finally:
         if bar is not None:
             bar.close()
@@ -102,8 +100,6 @@ def _print_warm_notes(notes: list[str]) -> None:
 
 
 def _check_address(address: str) -> None:
-    from sim.config import ConfigError
-
     host, sep, port = address.rpartition(":")
     if address not in ("auto",) and not (sep and host and port.isdigit()):
         raise ConfigError(f"--address {address!r}: expected HOST:PORT of a Ray head (or 'auto')")
@@ -117,7 +113,9 @@ def _print_summary(name: str, storages: Any, counts: Any, driver: Any) -> None:
     if driver.recovered:
         print(f"resumed: trials {', '.join(map(str, driver.recovered))} of a stopped driver were failed and retried")
     if counts.best_number is not None:
-        best = driver.study.trials[counts.best_number]
+        from autotune.search.records import read_study
+
+        best = read_study(storages, name).trials[counts.best_number]
         params = ", ".join(f"{k}={_short(v)}" for k, v in best.params.items())
         print(f"best: trial {best.number}: {counts.best_value:.2f} mph ({params})")
     else:

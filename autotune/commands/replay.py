@@ -7,7 +7,8 @@
 A study's trial (default: its best COMPLETE trial) is taken from its ``artifact_net_json``
 artifact and its stored config (``autotune.search.records.export_trial``). The run is the
 ``custom`` protocol's world ``--seed``; ``--frames``/``--every`` choose the frames drawn (the run
-goes on to ``--run-frames`` for its score). Bad input: one line on stderr, exit status 2.
+goes on to ``--run-frames`` for its score): ``dashboards.replay.record_run`` records it and
+``dashboards.replay_render.write_replay`` draws it. Bad input: one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from autotune.cliutil import add_storage_arguments, fail
+from autotune.cliutil import add_storage_arguments
+from sim.config import ConfigError
 
 
 def add_parser(subparsers: Any) -> None:
@@ -50,7 +52,6 @@ def add_parser(subparsers: Any) -> None:
 def _load(args: argparse.Namespace) -> tuple[str, Any, Any]:
     """(name, net, settings) from ``--net`` or from the study's trial."""
     from autotune.convnet.netjson import load
-    from sim.config import ConfigError
 
     if args.net is not None:
         if args.study is not None or args.trial is not None:
@@ -79,30 +80,25 @@ def _load(args: argparse.Namespace) -> tuple[str, Any, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Record the run and write ``--out``; 0, or 2 after a one-line error."""
-    from autotune.convnet.netjson import NetFormatError
+    """Record the run and write ``--out``; 0; bad input raises ConfigError."""
     from dashboards.replay import record_run
     from dashboards.replay_render import FORMATS, write_replay
-    from sim.config import ConfigError
 
-    try:
-        out = Path(args.out)
-        if out.suffix.lower() not in FORMATS:
-            raise ConfigError(f"--out: '{out}' has no replay format; use a name ending in {', '.join(FORMATS)}")
-        name, net, settings = _load(args)
-        rec = record_run(
-            net,
-            settings,
-            name=name,
-            ruleset=args.ruleset,
-            seed=args.seed,
-            frames=args.frames,
-            every=args.every,
-            run_frames=args.run_frames,
-        )
-        path = write_replay(rec, out, fps=args.fps)
-    except (ConfigError, NetFormatError) as exc:  # ConfigError: also the storage's and records' errors
-        return fail(str(exc))
+    out = Path(args.out)
+    if out.suffix.lower() not in FORMATS:
+        raise ConfigError(f"--out: '{out}' has no replay format; use a name ending in {', '.join(FORMATS)}")
+    name, net, settings = _load(args)
+    rec = record_run(
+        net,
+        settings,
+        name=name,
+        ruleset=args.ruleset,
+        seed=args.seed,
+        frames=args.frames,
+        every=args.every,
+        run_frames=args.run_frames,
+    )
+    path = write_replay(rec, out, fps=args.fps)
     print(
         f"{path}: {len(rec)} frames of {name} ({rec.config.ruleset}, seed {rec.seed}); "
         f"run score {rec.score:.2f} mph over {rec.run_frames} frames"

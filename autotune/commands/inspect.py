@@ -8,17 +8,16 @@
 ``--artifacts DIR`` where the trained networks were stored when that was not the default.
 ``dashboard`` serves optuna-dashboard on 127.0.0.1 with the study's artifact store attached (trained
 nets and net.js downloadable per trial) until Ctrl-C. Bad input (unknown study — the studies the
-storage holds are listed —, unreachable storage): one line on stderr, exit status 2.
+storage holds are listed —, unreachable storage): one line on stderr, exit status 2; a study with
+nothing to show yet (no complete trial): one line, exit status 1.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import socketserver
 import sys
 from typing import Any
-from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
 from autotune.cliutil import add_storage_arguments, fail
 
@@ -123,112 +122,27 @@ def _best(args: argparse.Namespace) -> int:
     return 0
 
 
-class _QuietHandler(WSGIRequestHandler):
-    def log_message(self, format: str, *args: Any) -> None:  # no access log on the terminal
-        pass
-
-
-class _ThreadingWSGIServer(socketserver.ThreadingMixIn, WSGIServer):
-    """wsgiref's server, one thread per request (the dashboard's page fires many API calls at once)."""
-
-    daemon_threads = True
-
-
 def _dashboard(args: argparse.Namespace) -> int:
-    import optuna_dashboard
-
-    from autotune.search.storage import StorageError, load_study
+    from autotune.search.dashboard import DashboardServer
+    from autotune.search.storage import StorageError
 
     if not args.storage and not args.study:
         raise StorageError("dashboard: give a STUDY (its embedded storage runs/<study>/) or --storage URL")
     if not 0 <= args.port < 65536:
         raise StorageError(f"--port: {args.port} is not a TCP port (1–65535, or 0 for any free one)")
     storages = _open(args, args.study or "default")
-    if args.study:
-        load_study(storages, args.study)  # an unknown name fails now, listing the storage's studies
-    app = optuna_dashboard.wsgi(storages.storage, artifact_store=storages.artifacts)
-    try:
-        server = make_server(
-            "127.0.0.1", args.port, app, server_class=_ThreadingWSGIServer, handler_class=_QuietHandler
-        )
-    except OSError as exc:  # e.g. the port is taken
-        raise StorageError(
-            f"dashboard: cannot listen on 127.0.0.1:{args.port} ({exc.strerror or exc}); try --port"
-        ) from None
-    url = f"http://127.0.0.1:{server.server_port}/"
-    if args.study:
-        url += f"dashboard/studies/{storages.storage.get_study_id_from_name(args.study)}"
-    print(f"optuna-dashboard for {storages.url} (artifacts {storages.artifact_dir}): {url}  (Ctrl-C to stop)")
+    server = DashboardServer(storages, args.study, args.port)
+    print(f"optuna-dashboard for {storages.url} (artifacts {storages.artifact_dir}): {server.url}  (Ctrl-C to stop)")
     sys.stdout.flush()
-    with server:
-        try:
-            server.serve_forever()
-        except KeyboardInterrupt:
-            pass
+    server.serve_forever()
     return 0
 
 
-# -- autotune evaluate --trial STUDY:N [--retrain] -------------------------------------------------
-def add_trial_arguments(p: argparse.ArgumentParser) -> None:
-    """``autotune evaluate``'s options that take the net from a study's trial instead of ``--net``."""
-    p.add_argument(
-        "--trial",
-        metavar="STUDY:N",
-        help="a study's COMPLETE trial: evaluate its stored net again (with --retrain: train it again from its "
-        "seed) and compare with its stored official score; exit status 1 if they differ",
-    )
-    add_storage_arguments(
-        p,
-        storage_help="--trial: the study's storage (default: runs/<study>/journal.log)",
-        artifacts_help="--trial: the study's artifact directory (default: beside its storage)",
-    )
-    p.add_argument("--retrain", action="store_true", help="--trial: retrain its config with its seed, then score it")
-
-
-def evaluate_trial(args: argparse.Namespace) -> int:
-    """``autotune evaluate --trial STUDY:N [--retrain]``: reproduce a trial's official score; 0 if identical, else 1."""
-    from autotune.search.records import rescore_trial, retrain_trial, study_resources
-    from sim.config import ConfigError
-
-    try:
-        if args.trial is None:
-            raise ConfigError("--retrain: needs --trial STUDY:N")
-        if args.net is not None or args.config is not None:
-            raise ConfigError("--trial: takes the net from the study; drop --net/--config")
-        study, sep, number = args.trial.rpartition(":")
-        if not sep or not study or not number.isdigit():
-            raise ConfigError(f"--trial: expected STUDY:N (e.g. quick:12), got '{args.trial}'")
-        storages = _open(args, study)
-        if args.retrain:
-            cpus = int(study_resources(storages, study).get("cpus_per_trial", 1) or 1)
-            from autotune import configure_process
-
-            configure_process(threads=max(1, cpus), numba_threads=max(1, cpus))  # as the study's workers ran
-            rep = retrain_trial(storages, study, int(number))
-        else:
-            rep = rescore_trial(storages, study, int(number))
-    except ConfigError as exc:  # RecordError included: exit status 1 means "not reproduced" only
-        return fail(str(exc))
-    if args.json:
-        print(json.dumps(rep.to_json()))
-    else:
-        what = f"retrained from seed {rep.seed}" if rep.how == "retrain" else "its stored net re-scored"
-        verdict = "identical" if rep.identical else f"DIFFERENT by {rep.reproduced - rep.stored:+.6g}"
-        print(
-            f"trial {rep.number} of {rep.study} ({rep.protocol}): stored {rep.stored!r} mph, {what}: "
-            f"{rep.reproduced!r} mph — {verdict} ({rep.wall_seconds:.1f} s)"
-        )
-    return 0 if rep.identical else 1
-
-
 def run(args: argparse.Namespace) -> int:
-    """Run the chosen inspection; 0, 1 when there is no record to show yet, 2 after a one-line error."""
+    """Run the chosen inspection; 0, or 1 when there is no record to show yet (bad input raises ConfigError)."""
     from autotune.search.records import RecordError
-    from sim.config import ConfigError
 
     try:
         return {"status": _status, "best": _best, "dashboard": _dashboard}[args.inspect](args)
-    except RecordError as exc:
+    except RecordError as exc:  # not bad input: the study has nothing to show yet (its own exit status)
         return fail(str(exc), EXIT_NO_RECORD)
-    except ConfigError as exc:
-        return fail(str(exc))

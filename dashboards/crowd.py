@@ -21,7 +21,6 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-from autotune.convnet import spec
 from autotune.learner.config import TrainConfig
 from autotune.search import keys, space
 from autotune.search.enqueue import add_finished

@@ -10,7 +10,6 @@ nearest one.
 from __future__ import annotations
 
 import ast
-import dataclasses
 import difflib
 import operator
 from collections.abc import Callable, Sequence

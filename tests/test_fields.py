@@ -201,8 +201,7 @@ def test_one_row_more_in_the_table_is_parsed_validated_searched_and_exported(tmp
 
 
 def test_search_and_crowd_bounds_come_from_the_table() -> None:
-    from optuna.distributions import FloatDistribution, IntDistribution
-
+    from autotune.search.records import Distribution
     from autotune.search.space import DEFAULT_SPACE
     from autotune.search.spec import param_bounds
     from dashboards import crowd
@@ -215,8 +214,8 @@ def test_search_and_crowd_bounds_come_from_the_table() -> None:
             {"lanes_side": 60, "learning_rate": 1e-5, "l2_decay": 0.1, "n_layers": 1},
         ]
     )
-    assert dists["lanes_side"] == IntDistribution(0, 60)  # the table's 0–50, widened to hold every value
+    assert dists["lanes_side"] == Distribution("int", 0, 60, False, 1)  # the table's 0–50, widened to hold every value
     # log as the paper samples it, from where the paper starts (the table's 0 cannot start a log scale)
-    assert dists["learning_rate"] == FloatDistribution(1e-8, 10.0, log=True)
-    assert dists["l2_decay"] == FloatDistribution(0.0, 10.0)  # a 0 allows no log scale
-    assert dists["n_layers"] == IntDistribution(0, 8)  # the open-ended layout: the paper's largest
+    assert dists["learning_rate"] == Distribution("float", 1e-8, 10.0, True)
+    assert dists["l2_decay"] == Distribution("float", 0.0, 10.0, False)  # a 0 allows no log scale
+    assert dists["n_layers"] == Distribution("int", 0, 8, False, 1)  # the open-ended layout: the paper's largest

@@ -60,10 +60,13 @@ class DashboardServer:
 
         if study_name:
             load_study(storages, study_name)  # an unknown name fails now, listing the storage's studies
-        app = read_only_app(optuna_dashboard.wsgi(storages.storage, artifact_store=storages.artifacts), storages.url)
+        self.app = read_only_app(
+            optuna_dashboard.wsgi(storages.storage, artifact_store=storages.artifacts), storages.url
+        )
+        """The WSGI application served: optuna-dashboard behind ``read_only_app``."""
         try:
             self._server = make_server(
-                "127.0.0.1", port, app, server_class=_ThreadingWSGIServer, handler_class=_QuietHandler
+                "127.0.0.1", port, self.app, server_class=_ThreadingWSGIServer, handler_class=_QuietHandler
             )
         except OSError as exc:  # e.g. the port is taken
             raise StorageError(
@@ -81,6 +84,10 @@ class DashboardServer:
                 self._server.serve_forever()
             except KeyboardInterrupt:
                 pass
+
+    def close(self) -> None:
+        """Close the listening socket (a server that will not serve, or has served)."""
+        self._server.server_close()
 
 
 def attach(storages: Storages, study_name: str, figures: Mapping[str, Any], note: str) -> list[str]:

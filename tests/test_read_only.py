@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+import io
 import json
 import os
 import sqlite3
 from pathlib import Path
 from typing import Any
+from wsgiref.util import setup_testing_defaults
 
 import optuna
 import pytest
@@ -229,6 +231,39 @@ def test_a_read_only_storage_refuses_writes(tmp_path: Path) -> None:
         assert refused(info.value), repr(info.value)
         assert study_names(open_storage(storage, STUDY, read_only=True)) == [STUDY]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["j.db", "j.log", "store"]  # no lock file left
+
+
+def _request(app: Any, method: str, path: str, body: bytes = b"") -> tuple[str, bytes]:
+    """One WSGI request to ``app``: (status line, body)."""
+    environ: dict[str, Any] = {"REQUEST_METHOD": method, "PATH_INFO": path, "CONTENT_LENGTH": str(len(body))}
+    setup_testing_defaults(environ)
+    environ["wsgi.input"] = io.BytesIO(body)
+    got: list[str] = []
+    chunks = app(environ, lambda status, headers, exc_info=None: got.append(status))
+    return got[0], b"".join(chunks)
+
+
+def test_the_dashboard_page_cannot_change_the_storage(journal_lines: list[bytes], tmp_path: Path) -> None:
+    """optuna-dashboard creates, renames and deletes studies, notes, tells trials: all refused, reads still served."""
+    (tmp_path / "j.log").write_bytes(b"".join(journal_lines))
+    before = tree(tmp_path)
+    server = DashboardServer(open_storage(str(tmp_path / "j.log"), STUDY, read_only=True), STUDY, 0)
+    try:
+        status, body = _request(server.app, "GET", "/api/studies")
+        assert status.startswith("200") and [s["study_name"] for s in json.loads(body)["study_summaries"]] == [STUDY]
+        writes = [
+            ("POST", "/api/studies", json.dumps({"study_name": "new", "directions": ["maximize"]}).encode()),
+            ("DELETE", "/api/studies/0", b""),
+            ("PUT", "/api/studies/0/note", json.dumps({"version": 1, "body": "hi"}).encode()),
+            ("POST", "/api/trials/2/tell", json.dumps({"state": "Fail"}).encode()),
+        ]
+        for method, path, payload in writes:
+            status, body = _request(server.app, method, path, payload)
+            assert status.startswith("403") and "read-only" in json.loads(body)["reason"], (method, path, body)
+    finally:
+        server.close()
+    assert study_names(open_storage(str(tmp_path / "j.log"), STUDY, read_only=True)) == [STUDY]
+    assert tree(tmp_path) == before
 
 
 def test_compare_reads_read_only_and_attaches_only_to_the_existing_study(

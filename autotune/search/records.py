@@ -209,7 +209,7 @@ def find_study(storage: str, study_name: str) -> StudyRecord | None:
     """
     try:
         storages = open_storage(storage, study_name, read_only=True)
-    except UnknownStudyError:  # no journal file: no study
+    except UnknownStudyError:  # no journal or SQLite file, an empty database: no study
         return None
     return read_study_if_present(storages, study_name)
 

@@ -251,7 +251,9 @@ def _open_journal(path: Path, shown: str) -> JournalStorage:
 def _journal(path: Path, shown: str, study_name: str, create: bool, read_only: bool) -> JournalStorage:
     if not create and not path.is_file():
         if path.exists():
-            raise StorageError(f"storage '{shown}': not a journal file (a directory or a device); pass the study's")
+            raise StorageError(
+                f"storage '{shown}': not a journal file (a directory or a device); pass the study's journal"
+            )
         raise UnknownStudyError(
             f"storage '{shown}': no study '{study_name}' (the journal file does not exist); "
             "launch the study first, or pass --storage"

@@ -625,7 +625,7 @@ def test_filter_expressions() -> None:
     assert keep({"engine_version": "v2", "reported_score_mph": 71.0, "lanesSide": 1})
     assert not keep({"engine_version": "v2", "reported_score_mph": None, "lanesSide": 1})  # blank: not > 70
     assert not keep({"engine_version": "v1", "reported_score_mph": 75.0, "lanesSide": 1})
-    assert compile_filter("lanesSide in [1, 3] or not reported_score_mph is None", columns)(
+    assert compile_filter("lanesSide in [1, 3] or not reported_score_mph == None", columns)(
         {"engine_version": "v1", "reported_score_mph": None, "lanesSide": 3}
     )
     for bad, message in (

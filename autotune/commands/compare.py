@@ -6,8 +6,10 @@
 Writes the self-contained HTML report (``dashboards.report``) and attaches its figures to the study
 in optuna-dashboard; its measured-crowd panels read the package data (``dashboards.measured``,
 ``dashboards.spread``: own-weight scores, the replay table, the site's number under 50 protocol
-seeds, up to ``--spread-runs`` runs per evaluation), so it scores nothing itself. Bad input: one
-line on stderr, exit status 2.
+seeds, up to ``--spread-runs`` runs per evaluation), so it scores nothing itself. The studies are
+read read-only; the only write is the figures and note attached to the existing STUDY (none with
+``--no-dashboard``). Bad input (``--out`` where it cannot be written — checked first —, a storage
+or study that is not there, damaged or not Optuna's): one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from autotune.cliutil import add_storage_arguments
+from autotune.cliutil import add_storage_arguments, output_file
 from sim.config import ConfigError
 
 
@@ -50,29 +52,31 @@ def run(args: argparse.Namespace) -> int:
     from dashboards.extract import Empty
     from dashboards.spread import load_spread_runs
 
+    out = output_file(args.out, "--out")
     if not args.no_spread and args.spread_runs < 2:
         raise ConfigError(f"--spread-runs: need at least 2 runs, got {args.spread_runs}")
 
-    storages = open_storage(args.storage, args.study, heartbeat=False, create=False)
+    storages = open_storage(args.storage, args.study, read_only=True)
     automated = read_study(storages, args.study)
     if args.crowd:
-        crowd_study = read_study(open_storage(args.storage, args.crowd, heartbeat=False, create=False), args.crowd)
+        crowd_study = read_study(open_storage(args.storage, args.crowd, read_only=True), args.crowd)
     else:
         crowd_study = find_study(args.storage, crowd.CROWD_STUDY) or crowd.crowd_study(None)
     replay: StudyRecord | None
     if args.replay:
-        replay = read_study(open_storage(args.storage, args.replay, heartbeat=False, create=False), args.replay)
+        replay = read_study(open_storage(args.storage, args.replay, read_only=True), args.replay)
     else:
         replay = find_study(args.storage, crowd.REPLAY_STUDY)
     spread = Empty("not drawn (--no-spread)") if args.no_spread else load_spread_runs(args.spread_runs)
     built = report.build_report(automated, crowd_study, replay=replay, spread=spread, seed=args.seed)
-    path = report.write_html(built, args.out)
+    path = report.write_html(built, out)
     shown = sum(1 for s in built.sections if not isinstance(s.figure, report.Empty))
     print(f"wrote {path} ({shown} of {len(built.sections)} panels with data)")
     for s in built.sections:
         if isinstance(s.figure, report.Empty):
             print(f"  {s.title}: {s.figure.reason}")
     if not args.no_dashboard:
-        ids = report.attach_to_dashboard(storages, args.study, built)
+        writable = open_storage(args.storage, args.study, heartbeat=False, create=False)  # the study exists
+        ids = report.attach_to_dashboard(writable, args.study, built)
         print(f"attached {len(ids)} figure(s) and a note to study '{args.study}' for optuna-dashboard")
     return 0

@@ -157,7 +157,7 @@ def evaluate_trial(args: argparse.Namespace) -> int:
     if not sep or not study or not number.isdigit():
         raise ConfigError(f"--trial: expected STUDY:N (e.g. quick:12), got '{args.trial}'")
     # a missing trial or artifact is a ConfigError too (exit 2): exit status 1 means "not reproduced" only
-    storages = open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts, create=False)
+    storages = open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts, read_only=True)
     if args.retrain:
         cpus = int(study_resources(storages, study).get("cpus_per_trial", 1) or 1)
         from autotune import configure_process

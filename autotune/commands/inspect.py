@@ -7,9 +7,12 @@
 ``--storage`` is what ``autotune launch`` was given ('' = the embedded runs/<study>/journal.log);
 ``--artifacts DIR`` where the trained networks were stored when that was not the default.
 ``dashboard`` serves optuna-dashboard on 127.0.0.1 with the study's artifact store attached (trained
-nets and net.js downloadable per trial) until Ctrl-C. Bad input (unknown study — the studies the
-storage holds are listed —, unreachable storage): one line on stderr, exit status 2; a study with
-nothing to show yet (no complete trial): one line, exit status 1.
+nets and net.js downloadable per trial) until Ctrl-C, read-only (the page cannot create, change or
+delete studies). All three open the storage read-only: they create no journal, database, table,
+study or artifact directory. Bad input (unknown study — the studies the storage holds are listed —,
+unreachable, damaged or foreign storage, an ``--export`` directory that cannot be written — checked
+first): one line on stderr, exit status 2; a study with nothing to show yet (no complete trial): one
+line, exit status 1.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import json
 import sys
 from typing import Any
 
-from autotune.cliutil import add_storage_arguments, fail
+from autotune.cliutil import add_storage_arguments, fail, output_dir
 
 EXIT_NO_RECORD = 1  # the study exists but has nothing to show yet
 DEFAULT_PORT = 8080
@@ -68,7 +71,7 @@ def add_parser(subparsers: Any) -> None:
 def _open(args: argparse.Namespace, study: str) -> Any:
     from autotune.search.storage import open_storage
 
-    return open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts, create=False)
+    return open_storage(args.storage, study, heartbeat=False, artifacts=args.artifacts, read_only=True)
 
 
 def _status(args: argparse.Namespace) -> int:
@@ -85,6 +88,8 @@ def _status(args: argparse.Namespace) -> int:
 def _best(args: argparse.Namespace) -> int:
     from autotune.search.records import best_trial_record, export_best, race_summary
 
+    if args.export:
+        output_dir(args.export, "--export")  # before anything is read
     storages = _open(args, args.study)
     record = best_trial_record(storages, args.study)
     race = race_summary(storages, args.study)
@@ -132,7 +137,10 @@ def _dashboard(args: argparse.Namespace) -> int:
         raise StorageError(f"--port: {args.port} is not a TCP port (1–65535, or 0 for any free one)")
     storages = _open(args, args.study or "default")
     server = DashboardServer(storages, args.study, args.port)
-    print(f"optuna-dashboard for {storages.url} (artifacts {storages.artifact_dir}): {server.url}  (Ctrl-C to stop)")
+    print(
+        f"optuna-dashboard for {storages.url} (artifacts {storages.artifact_dir}; read-only): {server.url}  "
+        "(Ctrl-C to stop)"
+    )
     sys.stdout.flush()
     server.serve_forever()
     return 0

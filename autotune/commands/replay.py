@@ -8,7 +8,9 @@ A study's trial (default: its best COMPLETE trial) is taken from its ``artifact_
 artifact and its stored config (``autotune.search.records.export_trial``). The run is the
 ``custom`` protocol's world ``--seed``; ``--frames``/``--every`` choose the frames drawn (the run
 goes on to ``--run-frames`` for its score): ``dashboards.replay.record_run`` records it and
-``dashboards.replay_render.write_replay`` draws it. Bad input: one line on stderr, exit status 2.
+``dashboards.replay_render.write_replay`` draws it. The study is read read-only. Bad input (``--out``
+where it cannot be written — checked first —, a storage that is not there, damaged or not Optuna's):
+one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from autotune.cliutil import add_storage_arguments
+from autotune.cliutil import add_storage_arguments, output_file
 from sim.config import ConfigError
 
 
@@ -68,7 +70,7 @@ def _load(args: argparse.Namespace) -> tuple[str, Any, Any]:
     from autotune.search.records import export_best, export_trial
     from autotune.search.storage import open_storage
 
-    storages = open_storage(args.storage, args.study, heartbeat=False, artifacts=args.artifacts, create=False)
+    storages = open_storage(args.storage, args.study, heartbeat=False, artifacts=args.artifacts, read_only=True)
     with tempfile.TemporaryDirectory(prefix="replay-") as tmp:
         if args.trial is None:
             paths = export_best(storages, args.study, tmp)
@@ -87,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in FORMATS:
         raise ConfigError(f"--out: '{out}' has no replay format; use a name ending in {', '.join(FORMATS)}")
+    output_file(out, "--out")  # before the run is recorded
     name, net, settings = _load(args)
     rec = record_run(
         net,

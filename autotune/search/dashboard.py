@@ -3,18 +3,25 @@
 The only module importing ``optuna_dashboard``. The server is the dashboard's WSGI app with the
 study's artifact store attached (trained nets and net.js downloadable per trial), on wsgiref with
 one thread per request (the page fires many API calls at once), no access log on the terminal.
+It serves read-only: every request that would change the storage (create, rename or delete a
+study, notes, tell, user attrs, uploads: any method but GET/HEAD) is answered 403 with the reason,
+which the page shows — the storage it is given is opened read-only too.
 """
 
 from __future__ import annotations
 
+import json
 import socketserver
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
 from autotune.search.storage import StorageError, Storages, load_study
 
-__all__ = ["DashboardServer", "attach"]
+__all__ = ["READ_METHODS", "DashboardServer", "attach", "read_only_app"]
+
+READ_METHODS = ("GET", "HEAD")
+"""The HTTP methods the read-only dashboard answers; optuna-dashboard writes with POST, PUT and DELETE."""
 
 
 class _QuietHandler(WSGIRequestHandler):
@@ -28,8 +35,21 @@ class _ThreadingWSGIServer(socketserver.ThreadingMixIn, WSGIServer):
     daemon_threads = True
 
 
+def read_only_app(app: Callable[..., Iterable[bytes]], storage: str) -> Callable[..., Iterable[bytes]]:
+    """The WSGI ``app`` answering every request but ``READ_METHODS`` with 403 and a reason naming ``storage``."""
+    reason = json.dumps({"reason": f"read-only: autotune dashboard does not change the storage {storage}"}).encode()
+
+    def guarded(environ: dict[str, Any], start_response: Callable[..., Any]) -> Iterable[bytes]:
+        if environ.get("REQUEST_METHOD", "GET") in READ_METHODS:
+            return app(environ, start_response)
+        start_response("403 Forbidden", [("Content-Type", "application/json"), ("Content-Length", str(len(reason)))])
+        return [reason]
+
+    return guarded
+
+
 class DashboardServer:
-    """optuna-dashboard for ``storages`` listening on 127.0.0.1:``port`` (0: any free port), not yet serving.
+    """optuna-dashboard for ``storages``, read-only, on 127.0.0.1:``port`` (0: any free port), not yet serving.
 
     ``study_name`` (may be '') must exist in the storage (``UnknownStudyError`` listing the ones it
     has); the URL then opens that study's page. A port that cannot be bound is a ``StorageError``.
@@ -40,10 +60,13 @@ class DashboardServer:
 
         if study_name:
             load_study(storages, study_name)  # an unknown name fails now, listing the storage's studies
-        app = optuna_dashboard.wsgi(storages.storage, artifact_store=storages.artifacts)
+        self.app = read_only_app(
+            optuna_dashboard.wsgi(storages.storage, artifact_store=storages.artifacts), storages.url
+        )
+        """The WSGI application served: optuna-dashboard behind ``read_only_app``."""
         try:
             self._server = make_server(
-                "127.0.0.1", port, app, server_class=_ThreadingWSGIServer, handler_class=_QuietHandler
+                "127.0.0.1", port, self.app, server_class=_ThreadingWSGIServer, handler_class=_QuietHandler
             )
         except OSError as exc:  # e.g. the port is taken
             raise StorageError(
@@ -61,6 +84,10 @@ class DashboardServer:
                 self._server.serve_forever()
             except KeyboardInterrupt:
                 pass
+
+    def close(self) -> None:
+        """Close the listening socket (a server that will not serve, or has served)."""
+        self._server.server_close()
 
 
 def attach(storages: Storages, study_name: str, figures: Mapping[str, Any], note: str) -> list[str]:

@@ -30,6 +30,7 @@ from sim.config import ConfigError
 __all__ = [
     "STATES",
     "FINISHED_STATES",
+    "MIN_RATE_SPAN_S",
     "Distribution",
     "TrialRecord",
     "StudyRecord",
@@ -56,6 +57,8 @@ STATES: tuple[str, ...] = tuple(state.name for state in TrialState)
 """Every trial state's name: RUNNING, COMPLETE, PRUNED, FAIL, WAITING."""
 FINISHED_STATES: tuple[str, ...] = ("COMPLETE", "PRUNED", "FAIL")
 """The states a trial ends in."""
+MIN_RATE_SPAN_S = 1.0
+"""``status`` gives no rates over a shorter span: a handful of trials in milliseconds is no throughput."""
 _RECORD_ATTRS = (
     keys.SOURCE, keys.SEED, keys.CONFIG, keys.SETTINGS, keys.INPUT_SIZE, keys.NUM_STATES, keys.PARAM_COUNT,
     keys.FRAMES_SIMULATED, keys.TRAIN_SECONDS, keys.EVAL_SECONDS, keys.OFFICIAL_PROTOCOL, keys.OFFICIAL_MEAN,
@@ -205,8 +208,8 @@ def find_study(storage: str, study_name: str) -> StudyRecord | None:
     Creates nothing: a storage that does not exist yet holds no study.
     """
     try:
-        storages = open_storage(storage, study_name, heartbeat=False, create=False)
-    except UnknownStudyError:  # no journal file: no study
+        storages = open_storage(storage, study_name, read_only=True)
+    except UnknownStudyError:  # no journal or SQLite file, an empty database: no study
         return None
     return read_study_if_present(storages, study_name)
 
@@ -241,6 +244,8 @@ def study_summary(storages: Storages, study_name: str) -> dict[str, Any]:
     Throughput: finished trials (COMPLETE, PRUNED, FAIL) per hour and frames simulated per second
     (user attr ``frames_simulated``), both over the span from the first trial's start to the last
     finish — wall time of the whole study, all workers together, pauses between launches included.
+    No rates (None) until a trial has run to its end (COMPLETE or PRUNED: failures alone, often
+    instant, say nothing of speed) over a span of at least ``MIN_RATE_SPAN_S``.
     """
     study = read_study(storages, study_name)
     trials = study.trials
@@ -254,6 +259,7 @@ def study_summary(storages: Storages, study_name: str) -> dict[str, Any]:
     last = max(ends) if ends else None
     span = (last - first).total_seconds() if first is not None and last is not None else 0.0
     frames = sum(int(t.user_attrs.get(keys.FRAMES_SIMULATED, 0) or 0) for t in finished)
+    rated = span >= MIN_RATE_SPAN_S and counts["COMPLETE"] + counts["PRUNED"] > 0
     best = study.best
     best_out: dict[str, Any] | None = None
     if best is not None:
@@ -271,9 +277,9 @@ def study_summary(storages: Storages, study_name: str) -> dict[str, Any]:
         "first_start": _iso(first),
         "last_finish": _iso(last),
         "wall_seconds": span,
-        "trials_per_hour": len(finished) / span * 3600.0 if span > 0 else None,
+        "trials_per_hour": len(finished) / span * 3600.0 if rated else None,
         keys.FRAMES_SIMULATED: frames,
-        "frames_per_second": frames / span if span > 0 else None,
+        "frames_per_second": frames / span if rated else None,
     }
 
 
@@ -386,6 +392,11 @@ def format_summary(summary: dict[str, Any]) -> Sequence[str]:
             f"throughput: {summary['trials_per_hour']:.1f} trials/h, {summary['frames_per_second']:,.0f} frames/s "
             f"over {summary['wall_seconds'] / 60:.1f} min ({summary['first_start']} → {summary['last_finish']}){prune}"
         )
+    elif s["COMPLETE"] + s["PRUNED"] == 0:
+        failed = f" ({s['FAIL']} failed)" if s["FAIL"] else ""
+        lines.append(f"throughput: no trial has finished yet{failed}, so no rates")
+    else:
+        lines.append(f"throughput: the finished trials span {summary['wall_seconds']:.1f} s, too short for rates")
     return lines
 
 

@@ -14,23 +14,34 @@ be used:
   ``pool_pre_ping`` and a short connect timeout; ``postgresql://`` uses the installed psycopg 3
   driver. Artifacts go to ``runs/<study>/artifacts`` unless ``artifacts=`` names a directory
   (drivers on several machines need one shared directory for them).
+
+Read-only commands open with ``read_only=True``: nothing is created (no journal, lock file,
+database file, table, version row or artifact directory) and nothing can be written — a journal is
+read by ``ReadOnlyJournal`` (never locked or appended to), SQLite opens in its read-only mode and
+PostgreSQL sessions are read-only transactions. A journal with a bad line before its end, or a
+storage that is not Optuna's (a file that is not a journal, a database without Optuna's tables), is
+a ``StorageError`` naming the file or URL. A journal's last line without its newline is a writer
+mid-append, not damage: the complete lines before it are read.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import os
 import re
 import time
+import urllib.parse
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import optuna
 from optuna.artifacts import FileSystemArtifactStore
 from optuna.storages import BaseStorage, JournalStorage, RDBStorage
-from optuna.storages.journal import JournalFileBackend, JournalFileSymlinkLock
+from optuna.storages.journal import BaseJournalBackend, JournalFileBackend, JournalFileSymlinkLock
 
 from sim.config import ConfigError
 
@@ -38,7 +49,9 @@ __all__ = [
     "CONNECT_TIMEOUT_S",
     "GRACE_PERIOD_S",
     "HEARTBEAT_INTERVAL_S",
+    "OPTUNA_TABLES",
     "RUNS_DIR",
+    "ReadOnlyJournal",
     "StorageError",
     "Storages",
     "UnknownStudyError",
@@ -56,6 +69,10 @@ CONNECT_TIMEOUT_S = 5  # a server that does not answer fails the command in seco
 _CREATE_ATTEMPTS = 4  # RDBStorage creation tries when drivers race to create the tables
 _STUDY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 _DRIVERS = {"postgresql": "postgresql+psycopg", "postgres": "postgresql+psycopg"}  # bare scheme -> installed driver
+OPTUNA_TABLES = ("studies", "trials", "version_info")
+"""Tables every Optuna RDB storage has; a database without them is not (yet) a study storage."""
+_SQLITE_MAGIC = b"SQLite format 3\x00"  # the first bytes of every SQLite database file
+_JOURNAL_FIX = "restore it from a copy, or delete that line to read the records around it"
 
 
 class StorageError(ConfigError):
@@ -80,6 +97,8 @@ class Storages:
     """The storage as a user may see it: the journal path, or the URL with the password masked."""
     kind: str
     """``"journal"``, or the SQLAlchemy dialect of an RDB storage (``"sqlite"``, ``"postgresql"``, …)."""
+    read_only: bool = False
+    """Opened for reading only: the storage refuses every write."""
 
 
 def display_url(storage: str) -> str:
@@ -103,7 +122,10 @@ def _study_dir(study_name: str, what: str) -> Path:
     return RUNS_DIR / study_name
 
 
-def _artifact_store(directory: Path, shown: str) -> tuple[FileSystemArtifactStore, Path]:
+def _artifact_store(directory: Path, shown: str, create: bool) -> tuple[FileSystemArtifactStore, Path]:
+    """The artifact store in ``directory``, made (and checked writable) only when ``create``."""
+    if not create:  # a reader downloads from it if it is there; a missing one is a missing artifact, later
+        return FileSystemArtifactStore(str(directory)), directory
     try:
         directory.mkdir(parents=True, exist_ok=True)
         if not os.access(directory, os.W_OK | os.X_OK):
@@ -125,21 +147,123 @@ def _reason(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
+class ReadOnlyJournal(BaseJournalBackend):
+    """An Optuna journal file read as it stands: never created, locked or written to.
+
+    Lines are read up to the last one ending in a newline; a last line without it that starts a JSON
+    object is a record a writer is appending at this moment (Optuna writes each batch of records
+    with one ``write``), so it is left for the next read. A complete line that is not a JSON object with an integer
+    ``op_code`` is damage: ``StorageError`` naming the file and the line — on line 1, the file is not
+    an Optuna journal at all.
+    """
+
+    def __init__(self, path: Path, shown: str) -> None:
+        self.path = path
+        self.shown = shown
+        """The journal as the user named it (for messages)."""
+        self.line = 0
+        """The line of the record handed out last (1-based): the one Optuna was applying when it failed."""
+        self._offsets = {0: 0}  # record number -> byte offset of its line, for each complete line seen
+
+    def read_logs(self, log_number_from: int) -> Iterator[dict[str, Any]]:
+        number = max(n for n in self._offsets if n <= log_number_from)
+        try:
+            with self.path.open("rb") as f:
+                f.seek(self._offsets[number])
+                for line in f:
+                    if not line.endswith(b"\n"):
+                        if line.startswith(b"{"):
+                            return  # torn: a writer mid-append (every record is a JSON object)
+                        raise self.damage(number + 1, "not JSON: no '{' at column 1, and no newline")
+                    record = self._parse(line, number + 1)
+                    self._offsets[number + 1] = self._offsets[number] + len(line)
+                    number += 1
+                    if number > log_number_from:
+                        self.line = number
+                        yield record
+        except OSError as exc:
+            raise StorageError(f"storage '{self.shown}': cannot read the journal file ({_reason(exc)})") from None
+
+    def append_logs(self, logs: list[dict[str, Any]]) -> None:
+        raise StorageError(f"storage '{self.shown}': opened read-only; this command does not write to a study")
+
+    def _parse(self, line: bytes, number: int) -> dict[str, Any]:
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            why = f"not JSON: {exc.msg.removesuffix(' at')} at column {exc.colno}"
+        except ValueError:  # bytes that are not UTF-8
+            why = "not UTF-8 text"
+        else:
+            op = record.get("op_code") if isinstance(record, dict) else None
+            if isinstance(op, int) and not isinstance(op, bool):
+                return record  # type: ignore[no-any-return]
+            why = "JSON but no journal record: no integer op_code"
+        raise self.damage(number, why)
+
+    def damage(self, number: int, why: str) -> StorageError:
+        """The error for line ``number`` of the file, which is not a record Optuna can read (``why``)."""
+        if number <= 1:
+            with self.path.open("rb") as f:
+                sqlite = f.read(len(_SQLITE_MAGIC)) == _SQLITE_MAGIC
+            if sqlite:
+                return StorageError(
+                    f"storage '{self.shown}': not an Optuna journal file but an SQLite database; "
+                    f"pass --storage sqlite:///{self.path}"
+                )
+            return StorageError(
+                f"storage '{self.shown}': not an Optuna journal file (line 1: {why}); pass the study's journal file"
+            )
+        return StorageError(
+            f"storage '{self.shown}': damaged journal: line {number} is not a journal record ({why}); {_JOURNAL_FIX}"
+        )
+
+
+def _read_journal(path: Path, shown: str) -> JournalStorage:
+    """The journal at ``path`` (which exists) opened read-only, every record in it applied."""
+    backend = ReadOnlyJournal(path, shown)
+    try:
+        return JournalStorage(backend)  # replays the whole file now: damage shows here
+    except StorageError:
+        raise
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, AssertionError) as exc:
+        raise backend.damage(backend.line, f"a record Optuna cannot apply: {type(exc).__name__} {exc}") from None
+
+
 def _open_journal(path: Path, shown: str) -> JournalStorage:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         backend = JournalFileBackend(str(path), lock_obj=JournalFileSymlinkLock(str(path)))
         if not os.access(path, os.R_OK | os.W_OK) or not os.access(path.parent, os.W_OK | os.X_OK):
             raise PermissionError(f"not writable: {path}")  # the lock file is created beside the journal
-        return JournalStorage(backend)
     except OSError as exc:
         raise StorageError(
             f"storage '{shown}': cannot open the journal file ({_reason(exc)}); "
             "pass --storage PATH.log in a writable directory, or an SQLAlchemy URL"
         ) from None
+    try:
+        return JournalStorage(backend)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, AssertionError) as exc:
+        _read_journal(path, shown)  # names the damaged line
+        raise StorageError(f"storage '{shown}': cannot read the journal ({_reason(exc)}); {_JOURNAL_FIX}") from None
 
 
-def _open_rdb(url: str, shown: str, heartbeat: bool) -> tuple[RDBStorage, str]:
+def _journal(path: Path, shown: str, study_name: str, create: bool, read_only: bool) -> JournalStorage:
+    if not create and not path.is_file():
+        if path.exists():
+            raise StorageError(
+                f"storage '{shown}': not a journal file (a directory or a device); pass the study's journal"
+            )
+        raise UnknownStudyError(
+            f"storage '{shown}': no study '{study_name}' (the journal file does not exist); "
+            "launch the study first, or pass --storage"
+        )
+    return _read_journal(path, shown) if read_only else _open_journal(path, shown)
+
+
+def _open_rdb(
+    url: str, shown: str, heartbeat: bool, study_name: str, create: bool, read_only: bool
+) -> tuple[RDBStorage, str]:
     from sqlalchemy.engine import make_url
     from sqlalchemy.exc import ArgumentError, NoSuchModuleError, SQLAlchemyError
 
@@ -156,11 +280,22 @@ def _open_rdb(url: str, shown: str, heartbeat: bool) -> tuple[RDBStorage, str]:
     connect_args: dict[str, Any] = {}
     if dialect in ("postgresql", "mysql"):
         connect_args["connect_timeout"] = CONNECT_TIMEOUT_S
-    if dialect == "sqlite" and parsed.database not in (None, "", ":memory:"):
-        parent = Path(parsed.database).parent
-        if not parent.is_dir():
+    if dialect == "postgresql" and read_only:
+        connect_args["options"] = "-c default_transaction_read_only=on"  # the server refuses every write
+    database = parsed.database or ""
+    if dialect == "sqlite" and database not in ("", ":memory:") and not database.startswith("file:"):
+        file = Path(database)
+        if not create and not file.is_file():
+            raise UnknownStudyError(
+                f"storage '{shown}': no study '{study_name}' (the SQLite file {file} does not exist); "
+                "launch the study first, or pass --storage"
+            )
+        if read_only:  # SQLite's read-only mode: never creates the file, refuses every write
+            path = urllib.parse.quote(str(file.resolve()))
+            parsed = parsed.set(database=f"file:{path}", query={**parsed.query, "mode": "ro", "uri": "true"})
+        elif not file.parent.is_dir():
             raise StorageError(
-                f"storage '{shown}': the directory {parent} of the SQLite file does not exist; create it first"
+                f"storage '{shown}': the directory {file.parent} of the SQLite file does not exist; create it first"
             )
     engine_kwargs: dict[str, Any] = {"pool_pre_ping": True}
     if connect_args:
@@ -168,14 +303,21 @@ def _open_rdb(url: str, shown: str, heartbeat: bool) -> tuple[RDBStorage, str]:
     beat: dict[str, Any] = {}
     if heartbeat:
         beat = {"heartbeat_interval": HEARTBEAT_INTERVAL_S, "grace_period": GRACE_PERIOD_S}
+    full = parsed.render_as_string(hide_password=False)
     try:
-        storage = _create_rdb(parsed.render_as_string(hide_password=False), engine_kwargs, beat)
+        if not create:
+            _require_optuna_tables(full, engine_kwargs, shown, dialect, study_name)
+        storage = _create_rdb(full, engine_kwargs, beat, skip_table_creation=not create)
+    except StorageError:
+        raise
     except NoSuchModuleError:
         raise StorageError(
             f"storage '{shown}': SQLAlchemy has no database driver '{parsed.drivername}'; "
             "use sqlite:///PATH.db or postgresql://user:password@host:5432/db"
         ) from None
-    except (SQLAlchemyError, ImportError, OSError, RuntimeError, ValueError) as exc:
+    except RuntimeError as exc:  # Optuna: the tables' schema is another Optuna version's
+        raise StorageError(f"storage '{shown}': {_reason(exc)}") from None
+    except (SQLAlchemyError, ImportError, OSError, ValueError) as exc:
         fix = {
             "sqlite": "check the file path and that its directory is writable",
             "postgresql": "check host, port, user, password and database, and that the server is running",
@@ -184,12 +326,50 @@ def _open_rdb(url: str, shown: str, heartbeat: bool) -> tuple[RDBStorage, str]:
     return storage, dialect
 
 
-def _create_rdb(url: str, engine_kwargs: dict[str, Any], beat: dict[str, Any]) -> RDBStorage:
+def _require_optuna_tables(url: str, engine_kwargs: dict[str, Any], shown: str, dialect: str, study_name: str) -> None:
+    """Fail unless the database at ``url`` holds Optuna's tables — looked at only, nothing created.
+
+    An empty database holds no study (``UnknownStudyError``); one with other tables, or a file that
+    is not a database, is not an Optuna storage (``StorageError``).
+    """
+    import sqlalchemy
+    from sqlalchemy.exc import DatabaseError
+
+    engine = sqlalchemy.create_engine(url, **engine_kwargs)
+    try:
+        with engine.connect() as connection:
+            tables = set(sqlalchemy.inspect(connection).get_table_names())
+    except DatabaseError as exc:
+        cause = _reason(_root_cause(exc))
+        if dialect == "sqlite" and "not a database" in cause:
+            raise StorageError(
+                f"storage '{shown}': not an Optuna storage ({cause}); pass the study's storage"
+            ) from None
+        raise
+    finally:
+        engine.dispose()
+    missing = [t for t in OPTUNA_TABLES if t not in tables]
+    if not missing:
+        return
+    if not tables:
+        raise UnknownStudyError(
+            f"storage '{shown}': no study '{study_name}' (the database has no tables: no study was created there); "
+            "launch the study first, or check the URL"
+        )
+    found = ", ".join(sorted(tables)[:5]) + (", …" if len(tables) > 5 else "")
+    raise StorageError(
+        f"storage '{shown}': not an Optuna storage (tables {found}; no {', '.join(missing)}); check the URL"
+    )
+
+
+def _create_rdb(
+    url: str, engine_kwargs: dict[str, Any], beat: dict[str, Any], *, skip_table_creation: bool = False
+) -> RDBStorage:
     """``RDBStorage(url)``, retried when another process creates Optuna's tables at the same moment.
 
     Two drivers started together on an empty database both run ``CREATE TABLE``; the loser gets a
     duplicate-object error (PostgreSQL: unique violation on pg_type). The tables exist by then, so a
-    second attempt just finds them.
+    second attempt just finds them. ``skip_table_creation``: the tables exist already (checked).
     """
     from sqlalchemy.exc import IntegrityError, ProgrammingError
 
@@ -197,7 +377,7 @@ def _create_rdb(url: str, engine_kwargs: dict[str, Any], beat: dict[str, Any]) -
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)  # heartbeat_interval
-                return RDBStorage(url, engine_kwargs=engine_kwargs, **beat)
+                return RDBStorage(url, engine_kwargs=engine_kwargs, skip_table_creation=skip_table_creation, **beat)
         except (IntegrityError, ProgrammingError) as exc:
             text = str(exc).lower()
             if attempt + 1 == _CREATE_ATTEMPTS or ("already exists" not in text and "duplicate" not in text):
@@ -218,6 +398,7 @@ def open_storage(
     heartbeat: bool = True,
     artifacts: str | Path | None = None,
     create: bool = True,
+    read_only: bool = False,
 ) -> Storages:
     """Open the study storage named by ``storage`` (``--storage``) and its artifact store.
 
@@ -225,42 +406,40 @@ def open_storage(
     ``runs/<study>/``; ``artifacts`` overrides the artifact directory. ``heartbeat`` (RDB storages):
     trials record heartbeats every ``HEARTBEAT_INTERVAL_S`` and count as failed after
     ``GRACE_PERIOD_S`` of silence — read-only commands pass False. Raises ``StorageError`` (one
-    line) for a storage that cannot be opened; an RDB server is contacted here, so an unreachable
-    one fails now, within ``CONNECT_TIMEOUT_S``. ``create=False`` (read-only commands): a journal
-    file that does not exist is an ``UnknownStudyError`` instead of a new, empty ``runs/<study>/``.
+    line) for a storage that cannot be opened, is damaged or is not Optuna's; an RDB server is
+    contacted here, so an unreachable one fails now, within ``CONNECT_TIMEOUT_S``.
+
+    ``create=False``: open what exists and create nothing — a journal file, SQLite file or database
+    without Optuna's tables that is not there is an ``UnknownStudyError``, the artifact directory is
+    not made — but allow writes (``compare`` attaching figures to a study). ``read_only=True``
+    (``status``, ``best``, ``compare``, ``replay``, ``dashboard``, ``evaluate --trial``): as
+    ``create=False``, and the storage refuses every write.
     """
     storage = storage.strip()
     shown = display_url(storage)
     art_dir = Path(artifacts) if artifacts else None
+    create = create and not read_only
+    heartbeat = heartbeat and not read_only  # a reader runs no trial
     if not storage:
         run_dir = _study_dir(study_name, "the embedded storage")
         journal = run_dir / "journal.log"
-        _require_journal(journal, study_name, create)
-        opened: BaseStorage = _open_journal(journal, str(journal))
-        store, art_dir = _artifact_store(art_dir or run_dir / "artifacts", str(journal))
-        return Storages(opened, store, art_dir, str(journal), "journal")
+        opened: BaseStorage = _journal(journal, str(journal), study_name, create, read_only)
+        store, art_dir = _artifact_store(art_dir or run_dir / "artifacts", str(journal), create)
+        return Storages(opened, store, art_dir, str(journal), "journal", read_only)
     if "://" in storage:
-        opened, dialect = _open_rdb(storage, shown, heartbeat)
-        store, art_dir = _artifact_store(art_dir or _study_dir(study_name, "its artifact store") / "artifacts", shown)
-        return Storages(opened, store, art_dir, shown, dialect)
+        opened, dialect = _open_rdb(storage, shown, heartbeat, study_name, create, read_only)
+        art_dir = art_dir or _study_dir(study_name, "its artifact store") / "artifacts"
+        store, art_dir = _artifact_store(art_dir, shown, create)
+        return Storages(opened, store, art_dir, shown, dialect, read_only)
     path = Path(storage).expanduser()
     if path.suffix not in JOURNAL_SUFFIXES:
         raise StorageError(
             f"storage '{storage}': expected a journal file (*.log or *.journal) or an SQLAlchemy URL "
             "(sqlite:///study.db, postgresql://user@host/db); leave it empty for runs/<study>/journal.log"
         )
-    _require_journal(path, study_name, create)
-    opened = _open_journal(path, storage)
-    store, art_dir = _artifact_store(art_dir or path.parent / "artifacts", storage)
-    return Storages(opened, store, art_dir, storage, "journal")
-
-
-def _require_journal(path: Path, study_name: str, create: bool) -> None:
-    if not create and not path.is_file():
-        raise UnknownStudyError(
-            f"storage '{path}': no study '{study_name}' (the journal file does not exist); "
-            "launch the study first, or pass --storage"
-        )
+    opened = _journal(path, storage, study_name, create, read_only)
+    store, art_dir = _artifact_store(art_dir or path.parent / "artifacts", storage, create)
+    return Storages(opened, store, art_dir, storage, "journal", read_only)
 
 
 def study_names(storages: Storages) -> list[str]:

@@ -110,3 +110,24 @@ def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
     mine = [float(t.value or 0.0) for t in race if t.user_attrs["race_of"] == winner["trial"]]
     assert winner["mean"] == pytest.approx(sum(mine) / len(mine))
     assert record["value"] == max(t.value for t in trials if t.value is not None and t.state.name == "COMPLETE")
+
+
+@pytest.mark.slow
+def test_the_race_starts_in_the_last_part_of_the_time(tmp_path: Path) -> None:
+    """With trials to spare, the race starts when the clock reaches the last race_fraction of timeout_s.
+
+    (Finished trials normally hand their worker the next draw at once; in the race window they must not.)
+    """
+    spec = tmp_path / "race.toml"
+    spec.write_text(SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 90"))
+    code, out, err = finish(launch(tmp_path, str(spec), tag="racet-" + tmp_path.name), timeout=400)
+    assert code == 0, err
+    study = load(tmp_path, "race")
+    trials = study.get_trials(deepcopy=False)
+    race = [t for t in trials if "race_of" in t.user_attrs]
+    assert study.user_attrs.get("race_field") and race, "no race in the last half of the study's time"
+    first_race = min(t.datetime_start for t in race)
+    later = [t for t in trials if "race_of" not in t.user_attrs and t.datetime_start > first_race]
+    # once racing, no new draw starts until the race is over (then the search may go on)
+    done = max(t.datetime_complete for t in race if t.datetime_complete is not None)
+    assert all(t.datetime_start >= done for t in later), [t.number for t in later]

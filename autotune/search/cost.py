@@ -42,16 +42,18 @@ FEATURES = (
 """The model's work terms, in the order of its coefficients."""
 
 PRIOR = np.array([
-    1.2e-4,  # s per decision (the learn call and the simulator step of the ego)
-    5.0e-6,  # s per car-decision
-    5.0e-8,  # s per input per decision
-    3.0e-10,  # s per weight per decision (greedy forward, numpy views)
-    1.0e-10,  # s per weight × batch sample per update (2B-row forward + backward, torch)
-    0.5,  # s per official evaluation (engine + brain build, 500 runs of 2,000 frames)
-    0.25,  # s per red car of the official runs
-    9.0e-6,  # s per weight per red car (~33,500 float64 forward passes per car)
+    8.7e-5,  # s per decision (the learn call and the simulator step of the ego)
+    4.4e-6,  # s per car-decision
+    5.1e-8,  # s per input per decision
+    3.4e-10,  # s per weight per decision (greedy forward, numpy views)
+    2.1e-10,  # s per weight × batch sample per update (2B-row forward + backward, torch)
+    0.77,  # s per official evaluation (engine + brain build, 500 runs of 2,000 frames)
+    0.33,  # s per red car of the official runs
+    7.4e-6,  # s per weight per red car (~33,500 float64 forward passes per car)
 ])  # fmt: skip
-"""Prior coefficients [s per unit of each FEATURES term] (reference machine, one thread)."""
+"""Prior coefficients [s per unit of each FEATURES term]: fitted to 28 rungs of a 10-minute paper.toml study and
+a ladder smoke study on the 2-core reference machine (one thread per trial, load 2–4: conservative on a quiet
+machine). The first guess from 10 single-rung probes under-predicted those rungs by a median 50 %."""
 
 _PRIOR_WEIGHT = 4.0
 """The prior counts as this many observations (spread over its anchor configurations)."""

@@ -709,8 +709,10 @@ class Driver:
             self.pool.answer(event.slot, prune)
             return
         del self._running[event.slot]
-        if event.kind == "done" and not self._out_of_time():
-            self._launch_next(event.slot)  # the worker starts its next trial before this one's storage writes
+        if event.kind == "done" and not self._out_of_time() and not self._race_window():
+            # the worker starts its next trial before this one's storage writes (in the race window the loop
+            # starts race runs instead, once this trial's result is stored: it may be an entrant)
+            self._launch_next(event.slot)
         if event.kind == "lost":
             self._fail(run.trial, run.killed or event.cause, retryable=not run.killed)
             self._enqueue_retries()

@@ -96,13 +96,17 @@ def replay_tasks(
     return tasks
 
 
+def _configure_worker() -> None:
+    """A pool worker owns its process: one torch and one numba thread, denormals flushed (set once)."""
+    from autotune.runtime import configure_process
+
+    configure_process(1, numba_threads=1)
+
+
 def run_task(task: ReplayTask) -> measured.ReplayRun:
-    """Train and score one task with the trial objective (in this process)."""
-    from autotune.runtime import configure_process, process_configured
+    """Train and score one task with the trial objective (in this process, whose settings its owner set)."""
     from autotune.search.objective import COMPLETE, TrialTask, run_trial
 
-    if not process_configured():
-        configure_process(1, numba_threads=1)
     outcome = run_trial(
         TrialTask(
             number=task.seed_index, config=task.config, seed=task.seed, report_points=REPORT_POINTS,
@@ -170,7 +174,9 @@ def run_replay(
             keep(task, run_task(task))
     elif todo:
         context = multiprocessing.get_context("spawn")  # a fresh interpreter per worker: no inherited threads
-        with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        with concurrent.futures.ProcessPoolExecutor(
+            max_workers=workers, mp_context=context, initializer=_configure_worker
+        ) as pool:
             futures = {pool.submit(run_task, task): task for task in todo}
             for future in concurrent.futures.as_completed(futures):
                 keep(futures[future], future.result())

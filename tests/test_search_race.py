@@ -126,8 +126,9 @@ def test_the_race_starts_in_the_last_part_of_the_time(tmp_path: Path) -> None:
     trials = study.get_trials(deepcopy=False)
     race = [t for t in trials if "race_of" in t.user_attrs]
     assert study.user_attrs.get("race_field") and race, "no race in the last half of the study's time"
-    first_race = min(t.datetime_start for t in race)
-    later = [t for t in trials if "race_of" not in t.user_attrs and t.datetime_start > first_race]
+    first_race = min(t.datetime_start for t in race if t.datetime_start is not None)
+    later = [t for t in trials if "race_of" not in t.user_attrs and t.datetime_start is not None
+             and t.datetime_start > first_race]  # fmt: skip
     # once racing, no new draw starts until the race is over (then the search may go on)
     done = max(t.datetime_complete for t in race if t.datetime_complete is not None)
-    assert all(t.datetime_start >= done for t in later), [t.number for t in later]
+    assert all(t.datetime_start is not None and t.datetime_start >= done for t in later), [t.number for t in later]

@@ -66,7 +66,10 @@ import time
 import tomllib
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from autotune.search.spec import Dimension
 
 ROOT = Path(__file__).resolve().parents[1]
 THIS = Path(__file__).resolve()
@@ -144,45 +147,32 @@ def study_copy(data: Mapping[str, Any], name: str, seed: int, timeout_s: float) 
 # ---------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass(frozen=True)
-class PlainDim:
-    """One parameter the plain loop suggests (Optuna's terms)."""
-
-    name: str
-    kind: str
-    """'int', 'float' or 'categorical'."""
-    low: float | None = None
-    high: float | None = None
-    log: bool = False
-    step: float | None = None
-    choices: tuple[Any, ...] = ()
-
-
-def plain_space(spec: Any) -> tuple[tuple[PlainDim, ...], tuple[str, ...]]:
+def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
     """The [space] entries that are training settings, their ``_fraction`` forms or the layout, plus the train
     length (a ladder study's: searched over the ladder's range), and notes on what was left out or added."""
     from autotune import TrainConfig
+    from autotune.search.spec import Dimension
 
     settings = {f.name for f in dataclasses.fields(TrainConfig)}
-    dims: list[PlainDim] = []
+    dims: list[Dimension] = []
     notes: list[str] = []
     for d in spec.space:
         base = d.name.removesuffix(FRACTION)
         if base in settings or d.name in LAYOUT or d.name == "one_minus_gamma":
-            dims.append(PlainDim(d.name, d.kind, d.low, d.high, bool(d.log), d.step, tuple(d.choices)))
+            dims.append(d)
         else:
             notes.append(f"plain loop: [space] {d.name} is not a training setting; not sampled")
     names = {d.name for d in dims}
     if "train_iterations" not in names and "train_iterations" not in spec.fixed_values:
         ladder = tuple(getattr(spec, "ladder", ()) or ())
         rng = {"low": ladder[0], "high": ladder[-1], "log": True} if ladder else FALLBACK_ITERATIONS
-        dims.insert(0, PlainDim("train_iterations", "int", **rng))  # type: ignore[arg-type]
+        dims.insert(0, Dimension("train_iterations", "int", **rng))  # type: ignore[arg-type]
         where = "the [ladder]'s range" if ladder else "paper.toml's pre-ladder range"
         notes.append(f"plain loop: train_iterations sampled from {where} {rng['low']:,}–{rng['high']:,} (log)")
     return tuple(dims), tuple(notes)
 
 
-def _suggest(trial: Any, d: PlainDim, name: str) -> Any:
+def _suggest(trial: Any, d: Dimension, name: str) -> Any:
     if d.kind == "categorical":
         return trial.suggest_categorical(name, list(d.choices))
     assert d.low is not None and d.high is not None
@@ -191,7 +181,7 @@ def _suggest(trial: Any, d: PlainDim, name: str) -> Any:
     return trial.suggest_float(name, float(d.low), float(d.high), step=d.step, log=d.log)
 
 
-def sample_plain(trial: Any, dims: Sequence[PlainDim]) -> dict[str, Any]:
+def sample_plain(trial: Any, dims: Sequence[Dimension]) -> dict[str, Any]:
     """Define-by-run: each setting, then n_layers and neurons_i / activation_i for i < n_layers."""
     by_name = {d.name: d for d in dims}
     params: dict[str, Any] = {}
@@ -245,7 +235,7 @@ class _Limit(Exception):
 
 
 def plain_objective(
-    trial: Any, spec: Any, dims: Sequence[PlainDim], *, prune: bool, deadline: float, study_seed: int
+    trial: Any, spec: Any, dims: Sequence[Dimension], *, prune: bool, deadline: float, study_seed: int
 ) -> float:
     """One plain-loop trial: sample, train (reporting quick scores when pruning), score officially."""
     import optuna

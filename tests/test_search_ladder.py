@@ -162,6 +162,34 @@ def test_refused_draws_never_become_trials() -> None:
     assert len(study.trials) == 12 and refused > 0  # refusals used no trial (budget, startup phase)
 
 
+def test_the_gate_prices_a_draws_whole_ladder(tmp_path: Path) -> None:
+    """A sampled draw is priced at every rung it would climb: one whose first rung fits the cap but whose ladder
+    does not is refused (its value would be a short rung's score, not comparable with the others')."""
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    params = space.encode(spec, TINY.replace(layers="fc:8:relu|fc:8:tanh"))
+    configs = driver._rung_configs(params)  # noqa: SLF001
+    assert [c.train_iterations for c in configs] == [400, 1200]
+    assert driver._price(params) == pytest.approx(sum(driver.cost_model.predict(c) for c in configs))  # noqa: SLF001
+    draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=5))
+    prices = []
+    for _ in range(40):
+        p = space.sample(draws.ask(), spec)
+        prices.append((driver._price(p), driver.cost_model.predict(driver._rung_configs(p)[0])))  # noqa: SLF001
+    cap = sorted(full for full, _ in prices)[len(prices) // 2]
+    assert any(first <= cap < full for full, first in prices)  # the draws the old rule (first rung) let through
+    sampler = CostGatedSampler(optuna.samplers.RandomSampler(seed=3), spec, driver._price, cap, seed=3)  # noqa: SLF001
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    refused = 0
+    for _ in range(10):
+        trial = study.ask()
+        assert driver._price(space.sample(trial, spec)) <= cap  # noqa: SLF001
+        refused += sampler.refused(trial.number)
+        study.tell(trial, 0.0)
+    assert refused > 0
+
+
 def test_cost_model_fits_rungs() -> None:
     """Fitted to rungs that follow a known cost law, the model predicts a new config within 35 %."""
     truth = CostModel(tuple(3 * c for c in CostModel.prior().coef))

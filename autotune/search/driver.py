@@ -21,7 +21,7 @@ the grace period) and retries them; nothing a dead driver finished is touched.
 Budget ladder (a spec with [ladder]): a trial climbs rungs of fresh, complete trainings
 (``autotune.search.ladder``), each scored officially and reported at step B_r/B_0; its top rung is
 the highest whose predicted cost fits the study's cap (``autotune.search.cost``). Draws whose
-cheapest rung is over the cap are refused and redrawn inside the sampler (``autotune.search.gate``):
+whole ladder is over the cap are refused and redrawn inside the sampler (``autotune.search.gate``):
 they never become trials. The study's deadline travels with every task, so at ``timeout_s`` running
 trials stop (PRUNED, the finished rungs kept) and ``launch`` exits.
 
@@ -323,13 +323,18 @@ class Driver:
         return [space.to_config(self.spec, params, budget=b) for b in self.spec.ladder]
 
     def _price(self, params: dict[str, Any]) -> float | None:
-        """Predicted seconds of a draw's cheapest rung (the cost gate's question); None: not buildable."""
+        """Predicted seconds of a draw climbing the whole ladder (the cost gate's question); None: not buildable.
+
+        The whole ladder, not its cheapest rung: a draw that can only afford 10k or 30k iterations would
+        spend its cost on a value that is not comparable with the top rung's (a 10k score ranked beside
+        90k scores misleads the sampler and the pruner), and such draws were the costliest rung-0
+        trainings (60–180 s for one 10k score). Refusing them keeps every sampled trial on the same ladder."""
         try:
-            config = (space.to_config(self.spec, params, budget=self.spec.ladder[0]) if self.spec.ladder
-                      else space.to_config(self.spec, params))  # fmt: skip
+            configs = self._rung_configs(params)
         except ConfigError:
             return None
-        return self._model().predict(config)
+        model = self._model()
+        return sum(model.predict(c) for c in configs)
 
     def _model(self) -> CostModel:
         """The cost model refitted to the study's finished rungs (when their number changed)."""

@@ -35,7 +35,7 @@ MAX_DRAWS = 200
 """Draws tried per trial before the cheapest one is taken (it is then priced again by the driver)."""
 
 Price = Callable[[dict[str, Any]], float | None]
-"""``price(params)`` → predicted seconds of the draw's cheapest rung, None if it cannot be built."""
+"""``price(params)`` → predicted seconds of the draw (its whole ladder), None if it cannot be built."""
 
 
 def _distribution(d: Dimension) -> BaseDistribution:
@@ -53,7 +53,7 @@ def distributions(spec: StudySpec) -> dict[str, BaseDistribution]:
 
 
 class CostGatedSampler(BaseSampler):
-    """``base``'s draws, refused and redrawn while ``price`` says the cheapest rung is over ``cap_s``."""
+    """``base``'s draws, refused and redrawn while ``price`` says the draw costs more than ``cap_s``."""
 
     def __init__(self, base: BaseSampler, spec: StudySpec, price: Price, cap_s: float, seed: int) -> None:
         self._base = base

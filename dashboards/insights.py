@@ -241,10 +241,13 @@ def evaluate_study(data: StudyData, side: str, *, by_repository: bool | None = N
     if by_repository:
         groups.append(("pooled, one configuration per repository", one_per_repository(units)))
     out = []
+    group_kinds = []
+    for group, members in groups:  # the score kinds of the trials behind each group's configurations
+        member_keys = {m.config_key for m in members}
+        present = {t.kind for t in data.scored if t.config_key in member_keys}
+        group_kinds.append((group, members, [k for k in pv.KIND_LABEL if k in present]))
     for insight in INSIGHTS:
-        for group, members in groups:
-            kinds = [k for k in pv.KIND_LABEL if any(t.kind == k for t in data.scored if t.config_key in {
-                m.config_key for m in members})]  # fmt: skip
+        for group, members, kinds in group_kinds:
             out.append(evaluate(insight, members, study=data.name, side=side, group=group, kinds=kinds))
     return out
 

@@ -8,8 +8,9 @@ N a synthetic study is written to a journal in a temporary folder: N trials draw
 ``paper.toml``'s space (``space.sample`` with a seeded RandomSampler, ``space.to_config`` at the top
 rung), each with the user attrs the driver stores (``config``, ``param_count``, ``frames_simulated``,
 ``rungs``, ``seed``) and a value from a fixed function of its settings plus noise; a tenth PRUNED (no
-value), as in a study. Then ``autotune compare STUDY --storage JOURNAL --out report.html --no-dashboard``
-runs as a subprocess, timed as a whole process (import, read, statistics, figures, HTML), with the
+value), as in a study. Then ``autotune compare STUDY --storage JOURNAL --out report.html``
+runs as a subprocess (as users run it: the figures attached to the study; ``--no-dashboard`` leaves that
+out), timed as a whole process (import, read, statistics, figures, HTML), with the
 report's shipped-data panels as in any run. Prints a table (N, seconds, seconds per 1,000 trials, HTML
 size) and one JSON line (prefix ``JSON``), with the machine's load average before each run.
 """
@@ -84,10 +85,11 @@ _PROFILE = (
 )
 
 
-def time_compare(journal: Path, name: str, out: Path, profile: bool) -> float:
+def time_compare(journal: Path, name: str, out: Path, profile: bool, dashboard: bool) -> float:
     """Wall seconds of one ``autotune compare`` process (under cProfile with ``profile``, its top printed)."""
     cmd = [sys.executable, "-c", _PROFILE if profile else _RUN]
-    cmd += ["compare", name, "--storage", str(journal), "--out", str(out), "--no-dashboard"]
+    cmd += ["compare", name, "--storage", str(journal), "--out", str(out)]
+    cmd += [] if dashboard else ["--no-dashboard"]
     t0 = time.perf_counter()
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)  # noqa: S603
     wall = time.perf_counter() - t0
@@ -102,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", default="250,1000,5000", help="study sizes N, comma-separated")
     ap.add_argument("--profile", action="store_true", help="run compare under cProfile and print the top entries")
+    ap.add_argument("--no-dashboard", action="store_true", help="pass --no-dashboard (time the report alone)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.trials.split(",") if s.strip()]
     rows = []
@@ -114,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
             made = time.perf_counter() - t0
             load = os.getloadavg()[0]
             out = Path(tmp) / f"report{n}.html"
-            wall = time_compare(journal, name, out, args.profile)
+            wall = time_compare(journal, name, out, args.profile, not args.no_dashboard)
             rows.append({"trials": n, "seconds": wall, "per_1000_s": wall / n * 1000, "html_bytes": out.stat().st_size,
                          "load_before": load, "write_study_s": made})  # fmt: skip
             print(f"N={n:>6,}  compare {wall:7.1f} s  ({wall / n * 1000:6.1f} s per 1,000)  html "

@@ -51,7 +51,7 @@ def write_study(path: Path, name: str, n: int, seed: int = 0) -> None:
     study.set_user_attr(keys.STUDY_SPEC, spec.to_dict())
     draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
     rng = np.random.default_rng(seed)
-    trials = []
+    trials: list[optuna.trial.FrozenTrial] = []
     while len(trials) < n:
         params = space.sample(draws.ask(), spec)
         try:

@@ -1,7 +1,7 @@
 """How ``autotune compare`` scales with the study's size: wall time of the whole command at N trials.
 
     python bench/compare_scaling.py                       # N = 250, 1000, 5000
-    python bench/compare_scaling.py --trials 1000 --profile   # where the time goes (cProfile, top 25)
+    python bench/compare_scaling.py --trials 1000 --profile   # where the time goes (cProfile, top 30)
 
 A day of search makes thousands of trials, so the report must stay interactive at that size. For each
 N a synthetic study is written to a journal in a temporary folder: N trials drawn at random from
@@ -41,6 +41,7 @@ def write_study(path: Path, name: str, n: int, seed: int = 0) -> None:
     from autotune.search import keys, space
     from autotune.search.gate import distributions
     from autotune.search.spec import load_spec
+    from sim.config import ConfigError
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     spec = load_spec(ROOT / "study_configs" / "paper.toml")
@@ -56,7 +57,7 @@ def write_study(path: Path, name: str, n: int, seed: int = 0) -> None:
         params = space.sample(draws.ask(), spec)
         try:
             config = space.to_config(spec, params, budget=top)
-        except Exception:  # noqa: BLE001 - a draw deepqlearn rejects is no trial
+        except ConfigError:  # a draw deepqlearn rejects is no trial
             continue
         score = 62.0 + 6.0 * math.exp(-config.epsilon_test_time * 4) - 2.0 * abs(math.log10(config.learning_rate) + 3)
         score += float(rng.normal(0.0, 2.0))
@@ -106,7 +107,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", action="store_true", help="run compare under cProfile and print the top entries")
     ap.add_argument("--no-dashboard", action="store_true", help="pass --no-dashboard (time the report alone)")
     args = ap.parse_args(argv)
-    sizes = [int(s) for s in args.trials.split(",") if s.strip()]
+    try:
+        sizes = [int(s) for s in args.trials.split(",") if s.strip()]
+    except ValueError:
+        ap.error(f"--trials: comma-separated whole numbers of trials, e.g. 250,1000,5000; got {args.trials!r}")
+    if not sizes or min(sizes) < 1:
+        ap.error(f"--trials: at least one study size, each ≥ 1; got {args.trials!r}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:

@@ -50,15 +50,17 @@ def main(argv: list[str] | None = None, *, owns_process: bool | None = None) -> 
     """Parse ``argv`` (default ``sys.argv[1:]``) and run the chosen subcommand; returns the exit status.
 
     As the process's owner (default: when ``argv`` is None, i.e. run as the console script) it
-    first sets the process-wide settings (``configure_process``); an in-process call (a test, a
-    notebook) leaves its caller's process as it is. A ``ConfigError`` from the command is printed
-    as one line (its first) and returns 2.
+    first sets the process-wide settings (``configure_process``; not for the commands that only read a
+    study and draw, whose parsers say ``process_settings=False``: importing torch costs them ~2 s); an
+    in-process call (a test, a notebook) leaves its caller's process as it is. A ``ConfigError`` from
+    the command is printed as one line (its first) and returns 2.
     """
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or a one-line usage error already printed (2)
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
-    if argv is None if owns_process is None else owns_process:
+    owner = argv is None if owns_process is None else owns_process
+    if owner and getattr(args, "process_settings", True):  # commands that only read and draw skip torch's import
         from autotune.runtime import configure_process
 
         configure_process()

@@ -32,6 +32,7 @@ from typing import Any
 
 from autotune.learner.config import TrainConfig
 from autotune.search import keys
+from autotune.search.cost import CostModel
 from autotune.search.driver import Progress, StudyCounts
 from autotune.search.enqueue import ConfigTrial, enqueue_configs, replay_spec, run_enqueued
 from autotune.search.records import StudyRecord, read_study_if_present
@@ -159,6 +160,9 @@ def run_replay(
                 progress(task, run, True)
         else:
             todo.append(task)
+    # longest first (the prior cost model's prediction): the pool's last task is then a short one
+    prior = CostModel.prior()
+    todo.sort(key=lambda t: -prior.predict(TrainConfig.from_mapping(t.config)))
 
     def keep(task: ReplayTask, run: measured.ReplayRun) -> None:
         path = work_dir / task.cache_name()

@@ -450,3 +450,36 @@ def test_status_without_a_finished_trial_has_no_rates(
     assert cli.main(["status", "s", "--storage", storage, "--json"], owns_process=False) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["trials_per_hour"] is None and summary["frames_per_second"] is None
+
+
+def test_compare_reads_a_named_journal_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: Any) -> None:
+    """The study, the crowd study and the replay study share the ``--storage`` journal: it is replayed once
+    (each replay of a 5,000-trial journal reads ~50–100 MB), and once more only to attach the figures."""
+    from autotune.search import storage as storage_module
+
+    monkeypatch.chdir(tmp_path)
+    make_study(open_storage(str(tmp_path / "j.log"), STUDY, artifacts=tmp_path / "store"), STUDY)
+    reads: list[str] = []
+    real = storage_module._read_journal  # noqa: SLF001 - counted, not replaced
+
+    def counted(path: Path, shown: str) -> Any:
+        reads.append(str(path))
+        return real(path, shown)
+
+    monkeypatch.setattr(storage_module, "_read_journal", counted)
+    argv = ["compare", STUDY, "--storage", "j.log", "--out", "report.html", "--no-spread", "--no-dashboard"]
+    assert cli.main(argv, owns_process=False) == 0, capsys.readouterr().err
+    assert len(reads) == 1
+
+
+def test_commands_that_only_read_do_not_import_torch(tmp_path: Path) -> None:
+    """``status`` as its own process (the console script's owner path) never imports torch (~2 s of start-up)."""
+    import subprocess
+    import sys
+
+    make_study(open_storage(str(tmp_path / "j.log"), STUDY, artifacts=tmp_path / "store"), STUDY)
+    code = ("import sys; from autotune import cli; sys.argv = ['autotune', 'status', 'demo', '--storage', 'j.log']; "
+            "rc = cli.main(); print('torch' in sys.modules); sys.exit(rc)")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "False"

@@ -8,6 +8,7 @@ resuming with a changed space is refused.
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ from autotune.learner import train
 from autotune.search import keys, racing, space
 from autotune.search.cost import FEATURES, CostModel, Observation, features, plan
 from autotune.search.driver import Driver, WarmConfig, clip_params, make_pruner, make_sampler
-from autotune.search.gate import CostGatedSampler
+from autotune.search.gate import CostGatedSampler, distributions
 from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
 from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
@@ -316,3 +317,31 @@ def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
         d = Driver(spec.with_overrides(warm_start="nosuch", name="other"), storages)
         d.open_study()
         d._warm_start()  # noqa: SLF001
+
+
+def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -> None:
+    """A configuration one run of which the deadline would stop is not raced (it would score nothing after
+    taking a worker); of the affordable ones the best race, and a round starts its longest run first."""
+    spec = _spec(race_configs=2, race_seeds=1).with_overrides(storage=str(tmp_path / "j.log"))
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver._fitted_on = len(study.trials)  # noqa: SLF001 - keep the model above (no refit on these trials)
+    dists = distributions(spec)
+    layouts = {"fc:8:relu": 70.0, "fc:8:relu|fc:8:tanh": 72.0, "": 60.0, "fc:2:relu": 65.0}
+    for layers, value in layouts.items():
+        cfg = TINY.replace(layers=layers, train_iterations=1200)
+        study.add_trial(optuna.trial.create_trial(
+            params=space.encode(spec, cfg), distributions=dists, value=value,
+            user_attrs={keys.CONFIG: cfg.to_mapping(), keys.SEED: 1},
+        ))  # fmt: skip
+    cost = {n: driver._race_cost(t.user_attrs[keys.CONFIG]) for n, t in enumerate(study.trials)}  # noqa: SLF001
+    assert cost[1] > cost[0] > cost[3] > cost[2]
+    driver._fitted_on = len(study.trials)  # noqa: SLF001
+    timeout = spec.study.timeout_s
+    assert timeout is not None
+    driver._t0 = time.perf_counter() - timeout + (cost[0] + cost[1]) / 2  # noqa: SLF001
+    field, _results, _launched = driver._race_state()  # noqa: SLF001
+    assert field == [0, 3]  # the best (trial 1, 72.0) cannot finish before the deadline
+    runs, over = racing.next_runs(field, {}, set(), 1)
+    assert not over and max(runs, key=lambda r: cost[r.race_of]).race_of == 0

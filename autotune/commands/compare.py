@@ -15,7 +15,11 @@ or study that is not there, damaged or not Optuna's): one line on stderr, exit s
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from autotune.search.records import StudyRecord
+    from autotune.search.storage import Storages
 
 from autotune.cliutil import add_storage_arguments, output_file
 from sim.config import ConfigError
@@ -41,12 +45,12 @@ def add_parser(subparsers: Any) -> None:
         help="spread panel: runs per evaluation shown up to N (default 500, the site's; shipped data)",
     )  # fmt: skip
     cmp.add_argument("--no-spread", action="store_true", help="leave out the evaluation-spread panel")
-    cmp.set_defaults(func=run, command_name="compare")
+    cmp.set_defaults(func=run, command_name="compare", process_settings=False)
 
 
 def run(args: argparse.Namespace) -> int:
     """Write the report (and attach it); 0; bad input raises ConfigError."""
-    from autotune.search.records import StudyRecord, find_study, read_study
+    from autotune.search.records import read_study
     from autotune.search.storage import open_storage
     from dashboards import crowd, report
     from dashboards.extract import Empty
@@ -58,15 +62,18 @@ def run(args: argparse.Namespace) -> int:
 
     storages = open_storage(args.storage, args.study, read_only=True)
     automated = read_study(storages, args.study)
+    # one storage holds all three studies when --storage names it (a journal is read once: at 5,000 trials
+    # each read replays ~100 MB); the embedded default keeps each study in its own runs/<study>/ journal
+    shared = storages if args.storage.strip() else None
     if args.crowd:
-        crowd_study = read_study(open_storage(args.storage, args.crowd, read_only=True), args.crowd)
+        crowd_study = read_study(shared or open_storage(args.storage, args.crowd, read_only=True), args.crowd)
     else:
-        crowd_study = find_study(args.storage, crowd.CROWD_STUDY) or crowd.crowd_study(None)
+        crowd_study = _other_study(shared, args.storage, crowd.CROWD_STUDY) or crowd.crowd_study(None)
     replay: StudyRecord | None
     if args.replay:
-        replay = read_study(open_storage(args.storage, args.replay, read_only=True), args.replay)
+        replay = read_study(shared or open_storage(args.storage, args.replay, read_only=True), args.replay)
     else:
-        replay = find_study(args.storage, crowd.REPLAY_STUDY)
+        replay = _other_study(shared, args.storage, crowd.REPLAY_STUDY)
     spread = Empty("not drawn (--no-spread)") if args.no_spread else load_spread_runs(args.spread_runs)
     built = report.build_report(automated, crowd_study, replay=replay, spread=spread, seed=args.seed)
     path = report.write_html(built, out)
@@ -80,3 +87,10 @@ def run(args: argparse.Namespace) -> int:
         ids = report.attach_to_dashboard(writable, args.study, built)
         print(f"attached {len(ids)} figure(s) and a note to study '{args.study}' for optuna-dashboard")
     return 0
+
+
+def _other_study(shared: Storages | None, storage: str, name: str) -> StudyRecord | None:
+    """The study ``name`` if present: in the already opened ``shared`` storage, else found by ``storage``."""
+    from autotune.search.records import find_study, read_study_if_present
+
+    return read_study_if_present(shared, name) if shared is not None else find_study(storage, name)

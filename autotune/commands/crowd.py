@@ -50,7 +50,7 @@ def add_parser(subparsers: Any) -> None:
         action="store_true",
         help="score the 25 human nets with their own weights now (exact engine; default: the shipped scores)",
     )
-    imp.set_defaults(func=run, command_name="crowd-import")
+    imp.set_defaults(func=run, command_name="crowd-import", process_settings=False)
     rep = actions.add_parser(
         "replay", help="retrain and score crowd settings (K seeds each) with our learner and the exact engine"
     )

@@ -40,7 +40,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("study", help="study name")
     add_storage_arguments(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=run, inspect="status")
+    p.set_defaults(func=run, inspect="status", process_settings=False)
 
     p = subparsers.add_parser(
         "best",
@@ -52,7 +52,7 @@ def add_parser(subparsers: Any) -> None:
     add_storage_arguments(p)
     p.add_argument("--export", metavar="DIR", help="write net.json, net.config.json and net.js into DIR")
     p.add_argument("--json", action="store_true", help="print the trial record as one JSON object")
-    p.set_defaults(func=run, inspect="best")
+    p.set_defaults(func=run, inspect="best", process_settings=False)
 
     p = subparsers.add_parser(
         "dashboard",
@@ -65,7 +65,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument(
         "--port", type=int, default=DEFAULT_PORT, help=f"port on 127.0.0.1 (default {DEFAULT_PORT}; 0: any free port)"
     )
-    p.set_defaults(func=run, inspect="dashboard")
+    p.set_defaults(func=run, inspect="dashboard", process_settings=False)
 
 
 def _open(args: argparse.Namespace, study: str) -> Any:

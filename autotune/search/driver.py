@@ -424,10 +424,12 @@ class Driver:
         assert self.study is not None
         field = self.study.user_attrs.get(keys.RACE_FIELD)
         if field is None:
+            left = self._time_left()
             candidates = [
                 (t.number, float(t.value), t.user_attrs[keys.CONFIG])
                 for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
                 if t.value is not None and isinstance(t.user_attrs.get(keys.CONFIG), dict) and _original(t)
+                and self._race_cost(t.user_attrs[keys.CONFIG]) <= left
             ]  # fmt: skip
             field = [e.number for e in racing.entrants(candidates, self.spec.study.race_configs)]
             self.study.set_user_attr(keys.RACE_FIELD, field)
@@ -446,6 +448,21 @@ class Driver:
                 results[key] = None
         return list(field), results, launched
 
+    def _time_left(self) -> float:
+        """Seconds until the study's deadline (inf without ``timeout_s``)."""
+        limit = self.spec.study.timeout_s
+        return math.inf if limit is None else limit - (time.perf_counter() - self._t0)
+
+    def _race_cost(self, config: Any) -> float:
+        """Predicted seconds of one race run of a trial's ``config`` mapping (inf: not buildable).
+
+        The race's field is drawn from the configurations one run of which fits the time left: a run the
+        deadline stops scores nothing, so such an entrant would only rank last after taking a worker."""
+        try:
+            return self._model().predict(TrainConfig.from_mapping(config))
+        except (ConfigError, TypeError, ValueError):
+            return math.inf
+
     def _launch_race(self, slot: int) -> bool:
         """Start the next race run on ``slot``; False when none can start now (round running, or race over)."""
         assert self.study is not None
@@ -456,8 +473,10 @@ class Driver:
             return False
         if not runs:
             return False
-        run = runs[0]
-        source = self.study.get_trials(deepcopy=False)[run.race_of]
+        trials = self.study.get_trials(deepcopy=False)
+        # longest first: a round ends with its cheap runs, not with one long run on one worker
+        run = max(runs, key=lambda r: self._race_cost(trials[r.race_of].user_attrs[keys.CONFIG]))
+        source = trials[run.race_of]
         seed = racing.race_seed(self.spec.study.seed, run.seed_index)
         self.study.enqueue_trial(dict(source.params), user_attrs={
             keys.CONFIG: source.user_attrs[keys.CONFIG], keys.SEED: seed, keys.RACE_OF: run.race_of,

@@ -483,3 +483,33 @@ def test_commands_that_only_read_do_not_import_torch(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_a_writer_cuts_off_a_torn_record_a_dead_writer_left(journal_lines: list[bytes], tmp_path: Path) -> None:
+    """A driver killed mid-append leaves a torn last line. The next writer (a resumed ``launch``) cuts it off,
+    saying so, before appending: otherwise its first record glues onto the fragment and becomes a middle
+    line no reader can apply, and every trial behind it is lost to ``status``/``best``/``compare``."""
+    from autotune.search.storage import JournalRepairedWarning
+
+    path = tmp_path / "j.log"
+    whole = b"".join(journal_lines)
+    path.write_bytes(whole + b'{"op_code": 8, "worker_id": "w", "trial_id": 0, "user_attr": {"x"')
+    with pytest.warns(JournalRepairedWarning, match=r"cut off a torn last record \(\d+ bytes"):
+        storages = open_storage(str(path), STUDY)
+    assert path.read_bytes() == whole
+    study = optuna.load_study(study_name=STUDY, storage=storages.storage)
+    study.set_user_attr("resumed", True)  # the resumed driver's first append
+    again = open_storage(str(path), STUDY, read_only=True)
+    assert read_study(again, STUDY).user_attrs["resumed"] is True
+    assert len(read_study(again, STUDY).trials) == len(read_study(open_storage(str(path), STUDY), STUDY).trials)
+
+
+def test_a_writer_refuses_a_journal_whose_last_complete_line_is_damage(
+    journal_lines: list[bytes], tmp_path: Path
+) -> None:
+    """Optuna's own reader skips a bad last line, so a writer would bury it: it is refused, naming the line."""
+    path = tmp_path / "j.log"
+    path.write_bytes(b"".join(journal_lines) + b'{"op_code": 4, "worker_id": "w", "tri\n')
+    with pytest.raises(StorageError, match=f"damaged journal: line {len(journal_lines) + 1} is not a journal record"):
+        open_storage(str(path), STUDY)
+    assert path.read_bytes().endswith(b'"tri\n')  # left as it was

@@ -230,12 +230,75 @@ def _read_journal(path: Path, shown: str) -> JournalStorage:
         raise backend.damage(backend.line, f"a record Optuna cannot apply: {type(exc).__name__} {exc}") from None
 
 
+class JournalRepairedWarning(UserWarning):
+    """A writer opening a journal cut off a torn last record that a dead writer left."""
+
+
+def _last_complete_line(f: Any, end: int) -> tuple[int, bytes]:
+    """(offset, bytes) of the line that ends at byte ``end`` (``f[end - 1]`` is its newline), read backwards."""
+    start = end - 1
+    chunk = 1 << 16
+    while start > 0:
+        lo = max(0, start - chunk)
+        f.seek(lo)
+        data = f.read(start - lo)
+        i = data.rfind(b"\n")
+        if i >= 0:
+            start = lo + i + 1
+            break
+        start = lo
+    f.seek(start)
+    return start, f.read(end - start)
+
+
+def _settle_tail(path: Path, shown: str, lock: JournalFileSymlinkLock) -> None:
+    """Before a writer appends: cut a torn last record off, and refuse a complete last line that is damage.
+
+    Optuna's reader skips a last line that is torn (no newline) or not JSON, so a writer would append after
+    it and turn it into a middle line that no reader can apply: every finished trial behind it would be
+    unreadable. Appends hold the journal's lock, so a torn line found while holding it is what a writer that
+    died mid-append (a killed driver) left: it was never a record (readers skip it), and it is cut off with
+    a ``JournalRepairedWarning``. A complete last line that is not a record is damage (``StorageError``).
+    """
+    if path.stat().st_size == 0:
+        return
+    lock.acquire()
+    try:
+        with path.open("rb+") as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(size - 1)
+            if f.read(1) != b"\n":
+                start, _torn = _last_complete_line(f, size + 1)
+                f.truncate(start)
+                f.flush()
+                os.fsync(f.fileno())
+                warnings.warn(JournalRepairedWarning(
+                    f"storage '{shown}': cut off a torn last record ({size - start:,} bytes without a newline) "
+                    "that a writer which died mid-append left; every complete record is kept"
+                ), stacklevel=3)  # fmt: skip
+                size = start
+            if size == 0:
+                return
+            _start, line = _last_complete_line(f, size)
+            backend = ReadOnlyJournal(path, shown)
+            try:
+                backend._parse(line, 0)  # noqa: SLF001 - its own class's check of one line
+            except StorageError:
+                f.seek(0)
+                number = sum(block.count(b"\n") for block in iter(lambda: f.read(1 << 20), b""))
+                backend._parse(line, number)  # noqa: SLF001 - raises again, naming the line
+    finally:
+        lock.release()
+
+
 def _open_journal(path: Path, shown: str) -> JournalStorage:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        backend = JournalFileBackend(str(path), lock_obj=JournalFileSymlinkLock(str(path)))
+        lock = JournalFileSymlinkLock(str(path))
+        backend = JournalFileBackend(str(path), lock_obj=lock)
         if not os.access(path, os.R_OK | os.W_OK) or not os.access(path.parent, os.W_OK | os.X_OK):
             raise PermissionError(f"not writable: {path}")  # the lock file is created beside the journal
+        _settle_tail(path, shown, lock)
     except OSError as exc:
         raise StorageError(
             f"storage '{shown}': cannot open the journal file ({_reason(exc)}); "

@@ -20,7 +20,7 @@ from autotune.learner import train
 from autotune.search import keys, racing, space
 from autotune.search.cost import FEATURES, CostModel, Observation, features, plan
 from autotune.search.driver import Driver, WarmConfig, clip_params, make_pruner, make_sampler
-from autotune.search.gate import CostGatedSampler, distributions
+from autotune.search.gate import MAX_DRAWS, CostGatedSampler, distributions
 from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
 from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
@@ -345,3 +345,32 @@ def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -
     assert field == [0, 3]  # the best (trial 1, 72.0) cannot finish before the deadline
     runs, over = racing.next_runs(field, {}, set(), 1)
     assert not over and max(runs, key=lambda r: cost[r.race_of]).race_of == 0
+
+
+def test_near_the_deadline_draws_must_fit_the_time_left(tmp_path: Path) -> None:
+    """The gate's cap is the study's cost cap or the time left, whichever is less; once the time left is below
+    the cheapest ladder the study has completed, no sampled trial starts (the deadline would stop it)."""
+    spec = _spec(max_trial_cost_s=20).with_overrides(storage=str(tmp_path / "j.log"))
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    timeout = spec.study.timeout_s
+    assert timeout is not None
+    driver._t0 = time.perf_counter()  # noqa: SLF001 - the study just started
+    assert driver._draw_cap() == 20  # noqa: SLF001 - 60 s left: the cost cap
+    driver._t0 = time.perf_counter() - timeout + 10  # noqa: SLF001 - 10 s left
+    assert 9 < driver._draw_cap() <= 10  # noqa: SLF001
+    assert driver._worth_starting()  # noqa: SLF001 - no complete trial yet: nothing known to be too long
+    driver._cheapest_ladder_s = 15.0  # noqa: SLF001 - the cheapest whole ladder took 15 s
+    assert not driver._worth_starting()  # noqa: SLF001
+    assert driver._launch_next(0) is False and study.trials == []  # noqa: SLF001 - nothing asked, nothing made
+
+    cap = [5.0]
+    sampler = CostGatedSampler(optuna.samplers.RandomSampler(seed=0), spec, lambda _p: 4.0, lambda: cap[0], seed=0)
+    gated = optuna.create_study(sampler=sampler)
+    first = gated.ask()
+    space.sample(first, spec)
+    assert sampler.refused(first.number) == 0  # 4 s fits a cap of 5 s
+    cap[0] = 3.0  # the deadline came closer: the cap is asked again for the next trial
+    second = gated.ask()
+    space.sample(second, spec)
+    assert sampler.refused(second.number) == MAX_DRAWS

@@ -130,10 +130,14 @@ def trial_seed(study_seed: int, number: int) -> int:
 
 
 def make_sampler(
-    spec: StudySpec, seed: int, price: Callable[[dict[str, Any]], float | None] | None = None
+    spec: StudySpec,
+    seed: int,
+    price: Callable[[dict[str, Any]], float | None] | None = None,
+    cap: Callable[[], float] | None = None,
 ) -> optuna.samplers.BaseSampler:
     """The spec's sampler, seeded, its startup count ``[study] sampler_startup_trials``; TPE multivariate with
-    constant liar in parallel. With ``price`` it sits behind the cost gate (``gate.CostGatedSampler``)."""
+    constant liar in parallel. With ``price`` it sits behind the cost gate (``gate.CostGatedSampler``), whose
+    cap is ``cap()`` when given (the driver's: the study's cost cap or the time left, whichever is less)."""
     name = spec.study.sampler
     needs = {"cmaes": "cmaes", "gp": "scipy"}.get(name)
     if needs is not None and importlib.util.find_spec(needs) is None:
@@ -141,7 +145,7 @@ def make_sampler(
     base = _base_sampler(spec, seed, name)
     if price is None:
         return base
-    return CostGatedSampler(base, spec, price, spec.study.cost_cap_s, seed)
+    return CostGatedSampler(base, spec, price, cap if cap is not None else spec.study.cost_cap_s, seed)
 
 
 def _base_sampler(spec: StudySpec, seed: int, name: str) -> optuna.samplers.BaseSampler:
@@ -223,6 +227,8 @@ class _Running:
     """Why the driver killed the worker (a trial past its wall-time limit that stopped answering)."""
     silent: bool = False
     """A race run: its score is not reported to the pruner (it is not a rung of the ladder)."""
+    sampled: bool = False
+    """Drawn by the sampler (not enqueued: no crowd setting, race run or retry)."""
 
 
 class Driver:
@@ -244,6 +250,8 @@ class Driver:
         self._fitted_on = -1
         self._observed: dict[int, list[Observation]] = {}
         self._race_over = False
+        self._cheapest_ladder_s = 0.0
+        """Wall seconds of the cheapest complete sampled trial so far (0 until one completes)."""
         self._wall0 = 0.0
         self.warm_notes: list[str] = []
         """What the warm start did (crowd settings enqueued, clipped or skipped; trials copied)."""
@@ -284,7 +292,8 @@ class Driver:
         study = optuna.create_study(
             study_name=name,
             storage=storage,
-            sampler=make_sampler(self.spec, self.spec.study.seed + n_before, self._price),  # a resumed run draws anew
+            # a resumed run draws anew
+            sampler=make_sampler(self.spec, self.spec.study.seed + n_before, self._price, self._draw_cap),
             pruner=make_pruner(self.spec),
             direction="maximize",
             load_if_exists=True,
@@ -447,6 +456,16 @@ class Driver:
             elif t.state in (TrialState.PRUNED, TrialState.FAIL):
                 results[key] = None
         return list(field), results, launched
+
+    def _draw_cap(self) -> float:
+        """The gate's cap for the next draw: the study's cost cap, or the time left if less (a ladder the deadline
+        would stop is refused: its finished rungs are no value, and its worker's time is lost)."""
+        return min(self.spec.study.cost_cap_s, self._time_left())
+
+    def _worth_starting(self) -> bool:
+        """False once the time left is below the cheapest whole ladder this study has run: no draw would finish,
+        so the study ends when its running trials do instead of starting trials the deadline stops."""
+        return self._time_left() >= self._cheapest_ladder_s
 
     def _time_left(self) -> float:
         """Seconds until the study's deadline (inf without ``timeout_s``)."""
@@ -614,6 +633,10 @@ class Driver:
             if not self._running:
                 if self._out_of_time() or not self._launch_possible():
                     return
+                if not self._worth_starting() and not self.study.get_trials(
+                    deepcopy=False, states=(TrialState.WAITING,)
+                ):
+                    return  # no sampled trial could finish before the deadline, and nothing is queued
             for event in self.pool.poll(timeout=1.0):
                 self._handle(event)
             now = time.perf_counter()
@@ -654,13 +677,16 @@ class Driver:
         return budget is None or self.counts.started < budget
 
     def _launch_next(self, slot: int) -> bool:
-        """Ask for a trial (a waiting retry first) and start it on ``slot``; False when the budget is spent."""
+        """Ask for a trial (a waiting retry first) and start it on ``slot``; False when the budget is spent or
+        the time left is too short for any sampled trial to finish (``_worth_starting``)."""
         assert self.study is not None
         waiting = self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,))
         if not waiting:
             self._refresh_counts()
             budget = self.spec.study.n_trials
             if budget is not None and self.counts.started >= budget:
+                return False
+            if not self._worth_starting():
                 return False
         trial = self.study.ask()
         trial_id = self._trial_id(trial.number)
@@ -714,7 +740,7 @@ class Driver:
         )  # fmt: skip
         trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
         trial.set_user_attr(keys.RAY_NODE, self.pool.node_of(slot))
-        self._running[slot] = _Running(trial, trial_id, slot, task, silent=race)
+        self._running[slot] = _Running(trial, trial_id, slot, task, silent=race, sampled=not given)
         self.pool.submit(slot, task)
         self._notify()
         return True
@@ -733,6 +759,9 @@ class Driver:
             self.pool.answer(event.slot, prune)
             return
         del self._running[event.slot]
+        if event.kind == "done" and run.sampled and event.outcome.state == COMPLETE and event.outcome.wall_seconds > 0:
+            wall = event.outcome.wall_seconds
+            self._cheapest_ladder_s = wall if self._cheapest_ladder_s == 0.0 else min(self._cheapest_ladder_s, wall)
         if event.kind == "done" and not self._out_of_time() and not self._race_window():
             # the worker starts its next trial before this one's storage writes (in the race window the loop
             # starts race runs instead, once this trial's result is stored: it may be an entrant)

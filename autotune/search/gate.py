@@ -53,9 +53,15 @@ def distributions(spec: StudySpec) -> dict[str, BaseDistribution]:
 
 
 class CostGatedSampler(BaseSampler):
-    """``base``'s draws, refused and redrawn while ``price`` says the draw costs more than ``cap_s``."""
+    """``base``'s draws, refused and redrawn while ``price`` says the draw costs more than ``cap_s``.
 
-    def __init__(self, base: BaseSampler, spec: StudySpec, price: Price, cap_s: float, seed: int) -> None:
+    ``cap_s`` may be a function, asked once per trial: the driver's cap shrinks to the time left before the
+    study's deadline, so a draw that the deadline would stop mid-ladder is refused like an unaffordable one.
+    """
+
+    def __init__(
+        self, base: BaseSampler, spec: StudySpec, price: Price, cap_s: float | Callable[[], float], seed: int
+    ) -> None:
         self._base = base
         self._space = distributions(spec)
         self._price = price
@@ -87,6 +93,7 @@ class CostGatedSampler(BaseSampler):
         if not search_space:
             return {}
         base_space = self._base.infer_relative_search_space(study, trial)
+        cap = self._cap() if callable(self._cap) else self._cap
         cheapest: tuple[float, dict[str, Any]] | None = None
         for refused in range(MAX_DRAWS):
             params = dict(self._base.sample_relative(study, trial, base_space)) if base_space else {}
@@ -94,7 +101,7 @@ class CostGatedSampler(BaseSampler):
                 if name not in params:
                     params[name] = self._random.sample_independent(study, trial, name, dist)
             cost = self._price(params)
-            if cost is not None and cost <= self._cap:
+            if cost is not None and cost <= cap:
                 self._refused[trial.number] = refused
                 return params
             if cost is not None and (cheapest is None or cost < cheapest[0]):

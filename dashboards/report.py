@@ -127,6 +127,21 @@ def _own_nets_lines(own: Sequence[measured.OwnNetScore]) -> list[str]:
     return lines
 
 
+def _unscored_replays(table: measured.ReplayTable | None) -> str:
+    """A sentence naming the table's configurations with no scored seed, and why (they have no point to draw)."""
+    if table is None:
+        return ""
+    lost = [e for e in table.entries if e.mean is None]
+    if not lost:
+        return ""
+    parts = []
+    for e in lost:
+        causes = sorted({(r.cause or r.state).split(":")[0] for r in e.runs})
+        parts.append(f"{e.crowd_id} ({e.engine}, claimed {e.claimed:.2f} mph): {' / '.join(causes)} in all "
+                     f"{len(e.runs)} seeds")  # fmt: skip
+    return f" Not drawn, no seed scored: {'; '.join(parts)}."
+
+
 def _merge_replays(
     shipped: list[extract.ClaimRow] | Empty, studied: list[extract.ClaimRow] | Empty
 ) -> list[extract.ClaimRow] | Empty:
@@ -234,7 +249,7 @@ def build_report(
             "The best-claimed crowd configurations (identical settings once), retrained by our learner in their own "
             "engine with their own settings and training length, several seeds each, scored with the engine's "
             f"official protocol (shipped table: {measured.REPLAY_COMMAND}); claim (open), each seed and the mean ± "
-            "sd over seeds.",
+            f"sd over seeds.{_unscored_replays(table)}",
             figures.replay_figure(replays),
         ),
     ]

@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import csv
 import dataclasses
 import io
 import json
+import multiprocessing
 import statistics
 from pathlib import Path
 
 import pytest
 
+from autotune.learner.config import TrainConfig
 from dashboards import crowd_data as cd
 from dashboards import measured
+from dashboards.crowd_replay import _configure_worker, replay_seed, replay_tasks, run_task
 from tests.conftest import CROWD
 
 
@@ -216,6 +220,48 @@ def test_shipped_own_net_scores_recompute_exactly(nid: str) -> None:
     shipped = {s.crowd_id: s for s in measured.load_own_nets()}[nid]
     again = measured.score_own_net(nid)
     assert dataclasses.replace(again, seconds=0.0) == dataclasses.replace(shipped, seconds=0.0)
+
+
+def test_shipped_replay_table_holds_every_selected_configuration() -> None:
+    """All 35 selected configurations (20 best-claimed v2, 15 v1), each retrained at its own trainIterations
+    (no cap) in its own engine from ≥ 2 seeds, every seed scored; the command that regenerates it is recorded."""
+    table = measured.load_replay()
+    assert table is not None, "replay.json is not shipped: python tools/crowd_measurements.py replay --workers N"
+    groups = measured.replay_selection()
+    assert [e.crowd_id for e in table.entries] == [g[0].id for g in groups]
+    assert table.max_iterations is None and table.seeds >= 2
+    assert table.command.startswith("python tools/crowd_measurements.py replay")
+    for e, rows in zip(table.entries, groups, strict=True):
+        sub = rows[0]
+        assert e.train_iterations == cd.train_config(sub).train_iterations and e.engine == sub.engine_version
+        assert e.protocol == {"v1": "v1-original", "v2": "v2-official"}[e.engine]
+        assert [r.seed_index for r in e.runs] == list(range(table.seeds))
+        assert [r.seed for r in e.runs] == [replay_seed(e.crowd_id, k) for k in range(table.seeds)]
+        for r in e.runs:  # every seed scored, or stopped by a divergence the learner detected (a trial state)
+            assert (r.state, r.cause) == ("complete", None) or (r.state == "pruned" and "diverged" in str(r.cause))
+    unscored = {e.crowd_id for e in table.entries if not e.scores}
+    assert unscored == {"dt-blackvitriol-rl-v00", "dt-jordanott-deep-traffic-v03"}  # NaN in both seeds
+    assert all(len(e.scores) == table.seeds for e in table.entries if e.crowd_id not in unscored)
+    from dashboards.report import _unscored_replays
+
+    named = _unscored_replays(table)  # the report's replay panel says which have no point, and why
+    assert all(f"{i} (" in named for i in unscored) and named.count("diverged in all 2 seeds") == 2
+
+
+def test_shipped_replay_scores_recompute_exactly() -> None:
+    """The cheapest entry's first seed, trained again by the same task: the same official score, to the digit."""
+    from autotune.search.cost import CostModel
+
+    table = measured.load_replay()
+    assert table is not None
+    tasks = {(t.crowd_id, t.seed_index): t for t in replay_tasks(measured.replay_selection(), table.seeds)}
+    prior = CostModel.prior()
+    scored = [e for e in table.entries if e.runs[0].score is not None]
+    cheapest = min(scored, key=lambda e: prior.predict(TrainConfig.from_mapping(tasks[e.crowd_id, 0].config)))
+    context = multiprocessing.get_context("spawn")  # as the table was made: a fresh worker, one thread
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=context, initializer=_configure_worker) as pool:
+        again = pool.submit(run_task, tasks[cheapest.crowd_id, 0]).result()
+    assert (again.state, again.score, again.seed) == ("complete", cheapest.runs[0].score, cheapest.runs[0].seed)
 
 
 def test_measured_files_fail_with_the_file_entry_and_key(tmp_path: Path) -> None:

@@ -2,6 +2,7 @@
 
     python bench/compare_scaling.py                       # N = 250, 1000, 5000
     python bench/compare_scaling.py --trials 1000 --profile   # where the time goes (cProfile, top 30)
+    python bench/compare_scaling.py --like runs/paper/journal.log  # copies of a launched study's trials
 
 A day of search makes thousands of trials, so the report must stay interactive at that size. For each
 N a synthetic study is written to a journal in a temporary folder: N trials drawn at random from
@@ -79,6 +80,56 @@ def write_study(path: Path, name: str, n: int, seed: int = 0) -> None:
     study.add_trials(trials)
 
 
+def clone_study(path: Path, name: str, n: int, source: Path) -> None:
+    """A study of ``n`` trials in the journal ``path`` made of a real study's finished trials, round robin.
+
+    Synthetic trials carry a few attrs; a launched study's carry the training curve, the deepqlearn
+    settings, every rung and the artifact ids (~10–20 kB each), which is what reading a journal costs.
+    Each copy keeps all of that; its learning rate moves by a relative 1e-6 per round so that every
+    copy is its own configuration (the insights count configurations once).
+    """
+    import copy
+
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    from autotune.search import keys
+    from autotune.search.storage import open_storage, study_names
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storages = open_storage(str(source), "_", read_only=True)
+    names = study_names(storages)
+    if not names:
+        raise SystemExit(f"--like {source}: the journal holds no study")
+    real = optuna.load_study(study_name=names[0], storage=storages.storage)
+    finished = [t for t in real.get_trials(deepcopy=False) if t.state.is_finished()]
+    if not finished:
+        raise SystemExit(f"--like {source}: study '{names[0]}' has no finished trial")
+    study = optuna.create_study(study_name=name, storage=JournalStorage(JournalFileBackend(str(path))),
+                                direction="maximize")  # fmt: skip
+    for key, value in real.user_attrs.items():
+        study.set_user_attr(key, value)
+    block = len(real.get_trials(deepcopy=False))
+    trials = []
+    for i in range(n):
+        t, k = finished[i % len(finished)], i // len(finished)
+        attrs = copy.deepcopy(t.user_attrs)
+        params = dict(t.params)
+        if isinstance(attrs.get(keys.CONFIG), dict):
+            attrs[keys.CONFIG]["learning_rate"] *= 1 + 1e-6 * k
+        if "learning_rate" in params:
+            params["learning_rate"] *= 1 + 1e-6 * k
+        if keys.RACE_OF in attrs:
+            attrs[keys.RACE_OF] = int(attrs[keys.RACE_OF]) + k * block
+        trials.append(optuna.trial.create_trial(
+            params=params, distributions=t.distributions, user_attrs=attrs, system_attrs=t.system_attrs,
+            state=t.state, value=t.value if t.state == optuna.trial.TrialState.COMPLETE else None,
+            intermediate_values=t.intermediate_values,
+        ))  # fmt: skip
+    study.add_trials(trials)
+
+
 _RUN = "import sys; from autotune.cli import main; sys.exit(main(sys.argv[1:]))"
 _PROFILE = (
     "import cProfile, pstats, sys; from autotune.cli import main; prof = cProfile.Profile(); "
@@ -106,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", default="250,1000,5000", help="study sizes N, comma-separated")
     ap.add_argument("--profile", action="store_true", help="run compare under cProfile and print the top entries")
     ap.add_argument("--no-dashboard", action="store_true", help="pass --no-dashboard (time the report alone)")
+    ap.add_argument(
+        "--like", metavar="JOURNAL", default=None,
+        help="copy a launched study's finished trials (all their attrs) instead of synthetic ones",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     try:
         sizes = [int(s) for s in args.trials.split(",") if s.strip()]
@@ -119,7 +174,10 @@ def main(argv: list[str] | None = None) -> int:
             journal = Path(tmp) / f"study{n}.log"
             name = f"synthetic{n}"
             t0 = time.perf_counter()
-            write_study(journal, name, n)
+            if args.like:
+                clone_study(journal, name, n, Path(args.like))
+            else:
+                write_study(journal, name, n)
             made = time.perf_counter() - t0
             load = os.getloadavg()[0]
             out = Path(tmp) / f"report{n}.html"
@@ -128,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
                          "load_before": load, "write_study_s": made})  # fmt: skip
             print(f"N={n:>6,}  compare {wall:7.1f} s  ({wall / n * 1000:6.1f} s per 1,000)  html "
                   f"{out.stat().st_size / 1e6:5.1f} MB  load {load:.2f}", flush=True)  # fmt: skip
-    print("JSON " + json.dumps({"bench": "compare_scaling", "cpus": os.cpu_count(), "rows": rows}))
+    print("JSON " + json.dumps({"bench": "compare_scaling", "cpus": os.cpu_count(), "like": args.like, "rows": rows}))
     return 0
 
 

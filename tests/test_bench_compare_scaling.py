@@ -29,3 +29,22 @@ def test_synthetic_study_is_what_the_report_reads(tmp_path: Path) -> None:
     data = study_data(study)
     assert len(data.trials) == 40 and not data.skipped
     assert len(data.scored) == sum(t.state == "COMPLETE" for t in study.trials) > 20
+
+
+def test_a_study_like_a_launched_one_copies_every_attr(tmp_path: Path) -> None:
+    """``--like``: a launched study's finished trials, round robin, each copy its own configuration."""
+    from tests.test_search_inspect import make_study
+
+    source = tmp_path / "real.log"
+    make_study(open_storage(str(source), "real", artifacts=tmp_path / "store"), "real")
+    real = read_study(open_storage(str(source), "real", read_only=True), "real")
+    finished = [t for t in real.trials if t.state in ("COMPLETE", "PRUNED", "FAIL")]
+    journal = tmp_path / "like.log"
+    cs.clone_study(journal, "like", 3 * len(finished), source)
+    copy = read_study(open_storage(str(journal), "like", read_only=True), "like")
+    assert len(copy.trials) == 3 * len(finished)
+    for i, t in enumerate(copy.trials):
+        original = finished[i % len(finished)]
+        assert t.state == original.state and set(t.user_attrs) == set(original.user_attrs)
+    configs = [t.user_attrs[keys.CONFIG] for t in copy.trials if keys.CONFIG in t.user_attrs]
+    assert len({str(sorted(c.items())) for c in configs}) == len(configs)  # every copy its own configuration

@@ -51,6 +51,7 @@ __all__ = [
     "HEARTBEAT_INTERVAL_S",
     "OPTUNA_TABLES",
     "RUNS_DIR",
+    "JournalRepairedWarning",
     "ReadOnlyJournal",
     "StorageError",
     "Storages",
@@ -234,21 +235,17 @@ class JournalRepairedWarning(UserWarning):
     """A writer opening a journal cut off a torn last record that a dead writer left."""
 
 
-def _last_complete_line(f: Any, end: int) -> tuple[int, bytes]:
-    """(offset, bytes) of the line that ends at byte ``end`` (``f[end - 1]`` is its newline), read backwards."""
-    start = end - 1
+def _line_start(f: Any, pos: int) -> int:
+    """Offset of the first byte after the last newline before ``pos`` (0 if none), read backwards in chunks."""
     chunk = 1 << 16
-    while start > 0:
-        lo = max(0, start - chunk)
+    while pos > 0:
+        lo = max(0, pos - chunk)
         f.seek(lo)
-        data = f.read(start - lo)
-        i = data.rfind(b"\n")
+        i = f.read(pos - lo).rfind(b"\n")
         if i >= 0:
-            start = lo + i + 1
-            break
-        start = lo
-    f.seek(start)
-    return start, f.read(end - start)
+            return lo + i + 1
+        pos = lo
+    return 0
 
 
 def _settle_tail(path: Path, shown: str, lock: JournalFileSymlinkLock) -> None:
@@ -268,7 +265,7 @@ def _settle_tail(path: Path, shown: str, lock: JournalFileSymlinkLock) -> None:
             size = f.seek(0, os.SEEK_END)
             f.seek(size - 1)
             if f.read(1) != b"\n":
-                start, _torn = _last_complete_line(f, size + 1)
+                start = _line_start(f, size)
                 f.truncate(start)
                 f.flush()
                 os.fsync(f.fileno())
@@ -279,7 +276,8 @@ def _settle_tail(path: Path, shown: str, lock: JournalFileSymlinkLock) -> None:
                 size = start
             if size == 0:
                 return
-            _start, line = _last_complete_line(f, size)
+            f.seek(_line_start(f, size - 1))
+            line = f.read(size - f.tell())
             backend = ReadOnlyJournal(path, shown)
             try:
                 backend._parse(line, 0)  # noqa: SLF001 - its own class's check of one line

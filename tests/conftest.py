@@ -5,6 +5,7 @@ from __future__ import annotations
 import gzip
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -27,3 +28,19 @@ def reference() -> Path:
     if not REFERENCE.is_dir():
         pytest.fail(f"reference data not found at {REFERENCE} (CI keeps ../shared beside the checkout)")
     return REFERENCE
+
+
+class FakePool:
+    """The calls of ``WorkerPool`` that ``Driver._launch_next`` makes, recording the tasks (no worker runs)."""
+
+    def __init__(self) -> None:
+        self.tasks: list[Any] = []
+
+    def worker_of(self, slot: int) -> str:
+        return f"test:{slot}"
+
+    def node_of(self, slot: int) -> str:
+        return "node"
+
+    def submit(self, slot: int, task: Any) -> None:
+        self.tasks.append(task)

@@ -15,7 +15,6 @@ import sys
 import time
 import uuid
 from pathlib import Path
-from typing import Any
 
 import optuna
 import pytest
@@ -27,6 +26,7 @@ from autotune.search.enqueue import replay_spec
 from autotune.search.storage import load_study, open_storage
 from dashboards import crowd, crowd_data
 from dashboards.crowd_replay import enqueue_replay, replay_seed
+from tests.conftest import FakePool
 from tests.test_search_launch import check_finished_trials, tagged_processes, wait_until
 
 # short crowd settings (≤ 2,300 weights): 5,000 iterations (one v2 row), or v1 ones above 70.5 mph (10,000 iterations)
@@ -92,22 +92,6 @@ def test_replay_trains_crowd_settings_and_a_rerun_runs_nothing(tmp_path: Path) -
     wait_until(lambda: not tagged_processes(tag), 30, "the replay's Ray processes to end")
 
 
-class _FakePool:
-    """The two calls of ``WorkerPool`` that ``Driver._launch_next`` makes, recording the tasks."""
-
-    def __init__(self) -> None:
-        self.tasks: list[Any] = []
-
-    def worker_of(self, slot: int) -> str:
-        return f"test:{slot}"
-
-    def node_of(self, slot: int) -> str:
-        return "node"
-
-    def submit(self, slot: int, task: Any) -> None:
-        self.tasks.append(task)
-
-
 def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: Path) -> None:
     by_id = {s.id: s for s in crowd_data.load_submissions()}
     v1 = by_id["dt-rahulpawar1489-deeptraffic-v05"]  # sgd, l1 0, its own start_learn_threshold: not all params
@@ -123,7 +107,7 @@ def test_driver_trains_an_enqueued_full_config_and_its_retry_keeps_it(tmp_path: 
     driver = Driver(spec, storages)
     study = driver.open_study()
     assert enqueue_replay(storages, "r", [v1, odd], seeds=1)[:2] == (2, 0)
-    driver.pool = _FakePool()
+    driver.pool = FakePool()
     assert driver._launch_next(0) and driver._launch_next(1)
     for task, sub in zip(driver.pool.tasks, (v1, odd), strict=True):
         assert TrainConfig.from_mapping(task.config) == configs[sub.id] and task.config == configs[sub.id].to_mapping()

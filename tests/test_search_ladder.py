@@ -7,6 +7,7 @@ resuming with a changed space is refused.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -25,7 +26,7 @@ from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
 from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
 from autotune.search.storage import open_storage
-from tests.conftest import ROOT
+from tests.conftest import ROOT, FakePool
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 CONFIGS = ROOT / "study_configs"
@@ -195,6 +196,57 @@ def test_the_gate_prices_a_draws_whole_ladder(tmp_path: Path) -> None:
         refused += sampler.refused(trial.number)
         study.tell(trial, 0.0)
     assert refused > 0
+
+
+def test_min_top_gates_the_ladder_below_it_and_cheap_draws_climb_above(tmp_path: Path) -> None:
+    """With ``[ladder] min_top`` the gate prices a draw up to that rung only; a trial then climbs while its
+    predicted cost fits the cap: a cheap configuration trains the whole ladder, a dearer one stops at
+    ``min_top`` (not refused), and one whose ladder to ``min_top`` is over the cap never becomes a trial."""
+    data = _spec().to_dict()
+    data["ladder"] = {"rungs": [400, 1200, 3600], "min_top": 1200}
+    spec = parse_spec(data, source="min_top.toml").with_overrides(storage=str(tmp_path / "j.log"))
+    assert spec.gated_rungs == 2 and parse_spec(spec.to_dict()) == dataclasses.replace(spec, source="spec")
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver._fitted_on = 0  # noqa: SLF001 - keep the model above (no finished trial to refit on)
+    small, large = (space.encode(spec, TINY.replace(layers=layers)) for layers in ("fc:2:relu", "fc:8:relu|fc:8:tanh"))
+    price = {}
+    for name, params in (("small", small), ("large", large)):
+        configs = driver._rung_configs(params)  # noqa: SLF001
+        costs = [driver.cost_model.predict(c) for c in configs]
+        assert driver._price(params) == pytest.approx(sum(costs[:2]))  # noqa: SLF001 - the gate's question
+        price[name] = costs
+    cap = (sum(price["large"][:2]) + sum(price["large"])) / 2  # large affords min_top, not the whole ladder
+    assert sum(price["small"]) < cap
+    driver.spec = spec = dataclasses.replace(spec, study=dataclasses.replace(spec.study, max_trial_cost_s=cap))
+    driver.pool = FakePool()
+    driver._t0 = time.perf_counter()  # noqa: SLF001 - the study just started: the cap, not the time left, binds
+    for params in (small, large):
+        study.enqueue_trial(params)
+    assert driver._launch_next(0) and driver._launch_next(1)  # noqa: SLF001
+    assert [t.rungs for t in driver.pool.tasks] == [(400, 1200, 3600), (400, 1200)]
+    assert [TrainConfig.from_mapping(t.config).train_iterations for t in driver.pool.tasks] == [3600, 1200]
+
+    gated = optuna.create_study(sampler=make_sampler(spec, 0, driver._price, driver._draw_cap))  # noqa: SLF001
+    tops = set()
+    for _ in range(12):
+        trial = gated.ask()
+        params = space.sample(trial, spec)
+        assert driver._price(params) <= cap  # noqa: SLF001
+        total = sum(driver.cost_model.predict(c) for c in driver._rung_configs(params))  # noqa: SLF001
+        tops.add(total <= cap)
+        gated.tell(trial, 0.0)
+    assert tops == {True, False}  # some draws climb the whole ladder, some stop at min_top
+
+
+def test_min_top_must_be_a_rung() -> None:
+    data = _spec().to_dict()
+    data["ladder"] = {"rungs": [400, 1200], "min_top": 800}
+    with pytest.raises(SpecError, match=r"\[ladder\] min_top: must be one of the rungs \[400, 1200\], got 800"):
+        parse_spec(data, source="bad.toml")
+    data["ladder"]["min_top"] = 1200  # the last rung: the default, stored as such
+    assert parse_spec(data).ladder_min_top == 0 and "min_top" not in parse_spec(data).to_dict()["ladder"]
 
 
 def test_cost_model_fits_rungs() -> None:

@@ -66,7 +66,8 @@ def test_paper_toml_is_the_paper_space() -> None:
     ladder = {"train_iterations", "learning_steps_total", "learning_steps_burnin"}
     assert {d.name for d in spec.space} == (set(TABLE1) - ladder) | set(FRACTIONS) | {"method"}
     assert set(TABLE1) <= set(PARAMS)
-    assert spec.ladder == (10_000, 30_000, 90_000) and spec.study.pruner == "sha"
+    assert spec.ladder == (10_000, 30_000, 90_000, 270_000, 810_000) and spec.study.pruner == "sha"
+    assert spec.ladder_min_top == 90_000 and spec.gated_rungs == 3  # every sampled draw affords 90k
     classic = parse_spec({"study": {"name": "d", "n_trials": 1}, "space": space.DEFAULT_SPACE})
     assert not classic.ladder and {d.name for d in classic.space} == set(TABLE1)  # the crowd study's space
 

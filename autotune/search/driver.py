@@ -332,18 +332,21 @@ class Driver:
         return [space.to_config(self.spec, params, budget=b) for b in self.spec.ladder]
 
     def _price(self, params: dict[str, Any]) -> float | None:
-        """Predicted seconds of a draw climbing the whole ladder (the cost gate's question); None: not buildable.
+        """Predicted seconds of a draw climbing the ladder up to ``min_top`` (the cost gate's question; the whole
+        ladder without it); None: not buildable.
 
-        The whole ladder, not its cheapest rung: a draw that can only afford 10k or 30k iterations would
-        spend its cost on a value that is not comparable with the top rung's (a 10k score ranked beside
-        90k scores misleads the sampler and the pruner), and such draws were the costliest rung-0
-        trainings (60–180 s for one 10k score). Refusing them keeps every sampled trial on the same ladder."""
+        Not its cheapest rung: a draw that can only afford 10k or 30k iterations would spend its cost on a
+        value that is not comparable with the others' (a 10k score ranked beside 90k scores misleads the
+        sampler and the pruner), and such draws were the costliest rung-0 trainings (60–180 s for one 10k
+        score). Refusing them keeps every sampled trial's value at ``min_top`` or above; rungs above it are
+        climbed where the cap allows (``plan``), so cheap configurations train longer instead of being
+        refused for a rung only the cheapest could afford."""
         try:
             configs = self._rung_configs(params)
         except ConfigError:
             return None
         model = self._model()
-        return sum(model.predict(c) for c in configs)
+        return sum(model.predict(c) for c in configs[: self.spec.gated_rungs])
 
     def _model(self) -> CostModel:
         """The cost model refitted to the study's finished rungs (when their number changed)."""
@@ -711,11 +714,15 @@ class Driver:
             else:
                 configs = self._rung_configs(params)
                 top = trial.user_attrs.get(keys.LADDER_TOP)
-                predicted = plan(configs, self._model(), self.spec.study.cost_cap_s, top)
+                # the top: the highest rung that fits the cap and the time left (a rung the deadline would stop
+                # is never started); at least the rungs the gate priced when the deadline is far
+                cap = self._draw_cap()
+                predicted = plan(configs, self._model(), cap, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
-                    raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over the "
-                                   f"study's cost cap of {self.spec.study.cost_cap_s:,.0f} s")  # fmt: skip
+                    over = (f"the study's cost cap of {cap:,.0f} s" if cap >= self.spec.study.cost_cap_s
+                            else f"the {cap:,.0f} s left before the study's deadline")
+                    raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over {over}")
                 config = configs[len(predicted.budgets) - 1]
                 rungs = predicted.budgets if self.spec.ladder else ()
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study

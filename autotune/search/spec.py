@@ -232,6 +232,9 @@ class StudySpec:
     """Workers and what each holds."""
     ladder: tuple[int, ...] = ()
     """[ladder] rungs [iterations]: each trial climbs them (fresh training per rung); () = one training."""
+    ladder_min_top: int = 0
+    """[ladder] min_top [iterations]: the rung every sampled draw must afford (the cost gate prices the ladder up
+    to it); above it a trial climbs while its predicted cost fits the cap. 0 = the last rung (the whole ladder)."""
     warm_start: WarmStartSection = WarmStartSection()
     """Crowd prior / earlier study copied into the sampler's history."""
     source: str = ""
@@ -266,16 +269,26 @@ class StudySpec:
             return 0
         return int(max(d.choices)) if d.kind == "categorical" else int(d.high or 0)
 
+    @property
+    def gated_rungs(self) -> int:
+        """How many of the ladder's rungs the cost gate prices a draw at (all of them unless ``min_top``)."""
+        if not self.ladder_min_top:
+            return len(self.ladder)
+        return self.ladder.index(self.ladder_min_top) + 1
+
     # -- (de)serialisation ------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready tables (stored as a study user attr); ``parse_spec`` rebuilds the same spec."""
+        ladder: dict[str, Any] = {"rungs": list(self.ladder)}
+        if self.ladder_min_top:  # left out at its default, so a study stored before the key existed still matches
+            ladder["min_top"] = self.ladder_min_top
         return {
             "study": dataclasses.asdict(self.study),
             "fixed": dict(self.fixed),
             "space": {d.name: d.to_dict() for d in self.space},
             "evaluation": dataclasses.asdict(self.evaluation),
             "resources": dataclasses.asdict(self.resources),
-            **({"ladder": {"rungs": list(self.ladder)}} if self.ladder else {}),
+            **({"ladder": ladder} if self.ladder else {}),
             "warm_start": dataclasses.asdict(self.warm_start),
         }
 
@@ -356,10 +369,10 @@ def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: s
     evaluation = _parse_evaluation(data.get("evaluation", {}), source, study.ruleset, ladder="ladder" in data)
     resources = _parse_resources(data.get("resources", {}), source)
     space = tuple(_parse_dimension(name, entry, source, study.ruleset) for name, entry in data.get("space", {}).items())
-    ladder = _parse_ladder(data.get("ladder"), source)
+    ladder, min_top = _parse_ladder(data.get("ladder"), source)
     warm = _parse_warm_start(data.get("warm_start", {}), source)
     fixed = _parse_fixed(data.get("fixed", {}), source, study.ruleset, {d.name for d in space})
-    spec = StudySpec(study, fixed, space, evaluation, resources, ladder, warm, source)
+    spec = StudySpec(study, fixed, space, evaluation, resources, ladder, min_top, warm, source)
     _check_combination(spec)
     return spec
 
@@ -368,7 +381,7 @@ _SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "study": tuple(f.name for f in dataclasses.fields(StudySection)),
     "evaluation": tuple(f.name for f in dataclasses.fields(EvaluationSection)),
     "resources": tuple(f.name for f in dataclasses.fields(ResourcesSection)),
-    "ladder": ("rungs",),
+    "ladder": ("rungs", "min_top"),
     "warm_start": tuple(f.name for f in dataclasses.fields(WarmStartSection)),
 }
 
@@ -427,9 +440,10 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     )  # fmt: skip
 
 
-def _parse_ladder(table: Any, src: str) -> tuple[int, ...]:
+def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int]:
+    """``(rungs, min_top)``; min_top 0 when the table leaves it out (the last rung)."""
     if table is None:
-        return ()
+        return (), 0
     _check_keys(table, "ladder", src)
     rungs = table.get("rungs")
     what = f"{src}: [ladder] rungs"
@@ -442,7 +456,11 @@ def _parse_ladder(table: Any, src: str) -> tuple[int, ...]:
         Ladder(tuple(values))
     except ValueError as exc:
         raise SpecError(f"{what}: {str(exc).removeprefix('rungs: ')}; e.g. rungs = [10000, 30000, 90000]") from None
-    return tuple(values)
+    min_top = table.get("min_top", 0)
+    if min_top != 0 and (isinstance(min_top, bool) or min_top not in values):
+        raise SpecError(f"{src}: [ladder] min_top: must be one of the rungs {values}, got {min_top!r}; e.g. "
+                        f"min_top = {values[min(2, len(values) - 1)]}, or leave it out (the last rung)")
+    return tuple(values), (0 if min_top == values[-1] else int(min_top))
 
 
 def _parse_warm_start(table: Mapping[str, Any], src: str) -> WarmStartSection:

@@ -720,8 +720,11 @@ class Driver:
                 predicted = plan(configs, self._model(), cap, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
-                    over = (f"the study's cost cap of {cap:,.0f} s" if cap >= self.spec.study.cost_cap_s
-                            else f"the {cap:,.0f} s left before the study's deadline")
+                    over = (
+                        f"the study's cost cap of {cap:,.0f} s"
+                        if cap >= self.spec.study.cost_cap_s
+                        else f"the {cap:,.0f} s left before the study's deadline"
+                    )
                     raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over {over}")
                 config = configs[len(predicted.budgets) - 1]
                 rungs = predicted.budgets if self.spec.ladder else ()

@@ -458,8 +458,10 @@ def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int]:
         raise SpecError(f"{what}: {str(exc).removeprefix('rungs: ')}; e.g. rungs = [10000, 30000, 90000]") from None
     min_top = table.get("min_top", 0)
     if min_top != 0 and (isinstance(min_top, bool) or min_top not in values):
-        raise SpecError(f"{src}: [ladder] min_top: must be one of the rungs {values}, got {min_top!r}; e.g. "
-                        f"min_top = {values[min(2, len(values) - 1)]}, or leave it out (the last rung)")
+        raise SpecError(
+            f"{src}: [ladder] min_top: must be one of the rungs {values}, got {min_top!r}; e.g. "
+            f"min_top = {values[min(2, len(values) - 1)]}, or leave it out (the last rung)"
+        )
     return tuple(values), (0 if min_top == values[-1] else int(min_top))
 
 

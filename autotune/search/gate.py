@@ -35,7 +35,7 @@ MAX_DRAWS = 200
 """Draws tried per trial before the cheapest one is taken (it is then priced again by the driver)."""
 
 Price = Callable[[dict[str, Any]], float | None]
-"""``price(params)`` → predicted seconds of the draw (its whole ladder), None if it cannot be built."""
+"""``price(params)`` → predicted seconds of the draw (its ladder up to min_top), None if it cannot be built."""
 
 
 def _distribution(d: Dimension) -> BaseDistribution:

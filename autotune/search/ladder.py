@@ -14,8 +14,10 @@ training at its budget, with the length-bound settings scaled to it (``rung_conf
 A trial trains rung 0, 1, … from its own seed and reports rung r's official score at step
 ``B_r / B_0`` (1, 3, 9, 27, 81 for the default ladder), so Optuna's successive halving
 (min_resource 1, reduction factor B_1/B_0) promotes exactly at the ladder. Its value is its top rung's
-score; the top is the ladder's last rung, lowered by the study's cost cap, or, for a crowd setting,
-the first rung that covers its ``trainIterations``.
+score; the top is the ladder's last rung, lowered by the study's cost cap and its time left, or, for a
+crowd setting, the first rung that covers its ``trainIterations``. The cost gate refuses a sampled draw
+that cannot afford the rungs up to ``[ladder] min_top`` (the whole ladder by default), so every sampled
+value is a score at ``min_top`` or above, while cheap configurations climb past it.
 """
 
 from __future__ import annotations

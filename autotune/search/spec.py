@@ -130,8 +130,8 @@ class StudySection:
     sampler_startup_trials: int = 10
     """Trials the sampler draws at random before modelling (TPE/GP/CMA-ES ``n_startup_trials``; not the pruner's)."""
     max_trial_cost_s: float | None = None
-    """Cost cap [s]: a sampled draw whose whole ladder (every rung, training + scoring) is predicted to cost more
-    is refused and redrawn; an enqueued trial's top rung is the highest whose rungs fit under it (None:
+    """Cost cap [s]: a sampled draw whose ladder up to [ladder] min_top (training + scoring) is predicted to cost
+    more is refused and redrawn; a trial's top rung is the highest whose rungs fit under it (None:
     trial_timeout_s)."""
     race_fraction: float = 0.25
     """Last fraction of timeout_s spent racing the best configurations over fresh seeds (0: no race)."""

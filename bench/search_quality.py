@@ -12,8 +12,8 @@ of ``--minutes``, timed from the arm's first command (process start, compilation
   ``autotune.learner.train`` (the quick scores its reporter gives, at the spec's [evaluation]
   report_points / quick_runs / quick_frames — train's own defaults in paper.toml), define-by-run over
   the spec's [space] (``n_layers``, then ``neurons_i`` / ``activation_i`` for i < n_layers; in a ladder
-  spec train_iterations log-uniform over the ladder's range, ``*_fraction`` settings × that length, the
-  threshold capped only below the replay memory), scored with ``evaluate_official``; ``--workers``
+  spec train_iterations log-uniform over the ladder's range up to min_top, ``*_fraction`` settings × that
+  length, the threshold capped only below the replay memory), scored with ``evaluate_official``; ``--workers``
   processes share a JournalStorage study; a trial past the spec's ``trial_timeout_s`` is stopped through
   ``train``'s progress hook and pruned (cause ``timeout: …``), one still running at the arm's end too;
 * ``random`` — the same loop with RandomSampler, no pruner and no quick scores;
@@ -149,7 +149,8 @@ def study_copy(data: Mapping[str, Any], name: str, seed: int, timeout_s: float) 
 
 def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
     """The [space] entries that are training settings, their ``_fraction`` forms or the layout, plus the train
-    length (a ladder study's: searched over the ladder's range), and notes on what was left out or added."""
+    length (a ladder study's: searched over the ladder's range up to ``min_top``), and notes on what was left out
+    or added."""
     from autotune import TrainConfig
     from autotune.search.spec import Dimension
 
@@ -165,9 +166,11 @@ def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
     names = {d.name for d in dims}
     if "train_iterations" not in names and "train_iterations" not in spec.fixed_values:
         ladder = tuple(getattr(spec, "ladder", ()) or ())
-        rng = {"low": ladder[0], "high": ladder[-1], "log": True} if ladder else FALLBACK_ITERATIONS
+        # up to min_top (every sampled trial's top or above): paper.toml's 10k–90k, the issue's "10k–100k" loop
+        top = ladder[spec.gated_rungs - 1] if ladder else 0
+        rng = {"low": ladder[0], "high": top, "log": True} if ladder else FALLBACK_ITERATIONS
         dims.insert(0, Dimension("train_iterations", "int", **rng))  # type: ignore[arg-type]
-        where = "the [ladder]'s range" if ladder else "paper.toml's pre-ladder range"
+        where = "the [ladder]'s range up to min_top" if ladder else "paper.toml's pre-ladder range"
         notes.append(f"plain loop: train_iterations sampled from {where} {rng['low']:,}–{rng['high']:,} (log)")
     return tuple(dims), tuple(notes)
 

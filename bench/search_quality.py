@@ -165,10 +165,9 @@ def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
             notes.append(f"plain loop: [space] {d.name} is not a training setting; not sampled")
     names = {d.name for d in dims}
     if "train_iterations" not in names and "train_iterations" not in spec.fixed_values:
-        ladder = tuple(getattr(spec, "ladder", ()) or ())
+        ladder = tuple(getattr(spec, "ladder", ()) or ())  # a spec-like without a ladder too
         # up to min_top (every sampled trial's top or above): paper.toml's 10k–90k, the issue's "10k–100k" loop
-        top = ladder[spec.gated_rungs - 1] if ladder else 0
-        rng = {"low": ladder[0], "high": top, "log": True} if ladder else FALLBACK_ITERATIONS
+        rng = {"low": ladder[0], "high": ladder[spec.gated_rungs - 1], "log": True} if ladder else FALLBACK_ITERATIONS
         dims.insert(0, Dimension("train_iterations", "int", **rng))  # type: ignore[arg-type]
         where = "the [ladder]'s range up to min_top" if ladder else "paper.toml's pre-ladder range"
         notes.append(f"plain loop: train_iterations sampled from {where} {rng['low']:,}–{rng['high']:,} (log)")

@@ -22,8 +22,9 @@ Budget ladder (a spec with [ladder]): a trial climbs rungs of fresh, complete tr
 (``autotune.search.ladder``), each scored officially and reported at step B_r/B_0; its top rung is
 the highest whose predicted cost fits the study's cap and time left (``autotune.search.cost``). Draws
 whose ladder up to ``[ladder] min_top`` (the whole ladder without it) is over the cap are refused and
-redrawn inside the sampler (``autotune.search.gate``): they never become trials. The study's deadline travels with every task, so at ``timeout_s`` running
-trials stop (PRUNED, the finished rungs kept) and ``launch`` exits.
+redrawn inside the sampler (``autotune.search.gate``): they never become trials. The study's deadline
+travels with every task, so at ``timeout_s`` running trials stop (PRUNED, the finished rungs kept) and
+``launch`` exits.
 
 Warm start: the crowd prior (``warm_configs``, enqueued once, every one trained and measured) and
 another study's measured trials copied into the sampler's history. Seed race: the last

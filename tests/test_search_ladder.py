@@ -101,6 +101,56 @@ def test_a_pruned_ladder_keeps_its_finished_rungs() -> None:
     assert outcome.value is None
 
 
+def test_a_policy_that_ignores_training_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
+    """Rungs that score exactly alike (median and mean) prune the trial with its cause; a net that learns climbs
+    on; the driver tells samplers the constraint, and TPE ranks the trial below every feasible pruned one."""
+    frozen = TINY.replace(learning_rate=0.0)  # sgd at rate 0: every rung's net is the initial one
+    outcome = run_trial(
+        TrialTask(number=0, config=frozen.to_mapping(), seed=3, rungs=(400, 1200), prune_unchanged=True),
+        lambda *a: False,
+    )
+    assert outcome.state == PRUNED and (outcome.cause or "").startswith("unchanged policy: rungs 0 and 1")
+    assert outcome.attrs[keys.UNCHANGED_POLICY] is True and set(outcome.rung_nets) == {400, 1200}
+    off = run_trial(TrialTask(number=0, config=frozen.to_mapping(), seed=3, rungs=(400, 1200)), lambda *a: False)
+    assert off.state == COMPLETE and keys.UNCHANGED_POLICY not in off.attrs  # the key turns it off
+    learns = TINY.replace(lanes_side=1, patches_ahead=4)
+    climbed = run_trial(
+        TrialTask(number=0, config=learns.to_mapping(), seed=3, rungs=(400, 1200), prune_unchanged=True),
+        lambda *a: False,
+    )
+    assert climbed.state == COMPLETE, climbed.cause
+
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    assert spec.ladder_prune_unchanged and "prune_unchanged" not in spec.to_dict()["ladder"]
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver.pool = FakePool()
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    assert driver._launch_next(0) and driver.pool.tasks[0].prune_unchanged  # noqa: SLF001
+    told = []
+    for result in (outcome, dataclasses.replace(outcome, attrs={k: v for k, v in outcome.attrs.items()
+                                                                 if k != keys.UNCHANGED_POLICY})):  # fmt: skip
+        trial = study.ask()
+        for step, rung in ((1, 52.0), (3, 52.0)):
+            trial.report(rung, step)
+        driver._finish(trial, result)  # noqa: SLF001
+        told.append(trial.number)
+    frozen_t, plain_t = (study.trials[n] for n in told)
+    assert frozen_t.constraints == {keys.POLICY_LEARNS: 1.0} and plain_t.constraints == {}
+    from optuna.samplers._tpe.sampler import _split_trials
+
+    below, above = _split_trials(study, [frozen_t, plain_t], n_below=1)
+    assert [t.number for t in below] == [plain_t.number] and frozen_t.number in [t.number for t in above]
+
+    data = _spec().to_dict()
+    data["ladder"]["prune_unchanged"] = "yes"
+    with pytest.raises(SpecError, match=r"\[ladder\] prune_unchanged: must be true or false"):
+        parse_spec(data, source="bad.toml")
+    data["ladder"]["prune_unchanged"] = False
+    off_spec = parse_spec(data)
+    assert not off_spec.ladder_prune_unchanged and off_spec.to_dict()["ladder"]["prune_unchanged"] is False
+
+
 def test_the_study_deadline_stops_a_trial_without_a_truncated_score() -> None:
     import time
 

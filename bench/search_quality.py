@@ -22,8 +22,9 @@ of ``--minutes``, timed from the arm's first command (process start, compilation
 
 ``--study-seeds`` repeats ``plain`` and ``cold`` once per study seed (the checkpoint figures are then
 medians over the runs); ``random`` and ``warm`` use the first seed. At every checkpoint: the best
-single net (max official score of the trials finished by then), the configuration the arm would pick
-(the best single net's; where seed-race trials (``race_of``) have finished, the raced configuration
+single net (max official score of the nets stored by then — COMPLETE trials' values and the kept rungs
+of finished ladder trials, as ``autotune best`` ranks them), the configuration the arm would pick
+(the best trial's; where seed-race trials (``race_of``) have finished, the raced configuration
 with the most race runs and then the best race mean) retrained with ``--reseeds`` fresh seeds — the
 same seeds for every arm, after the arm's budget, timed apart — and for ``warm`` the best trial that
 was not enqueued (no ``warm_start``). ``--reference`` (a crowd submission id, default gsurma's, the
@@ -508,6 +509,14 @@ class TrialRow:
     predicted_cost_s: float | None = None
     cause: str | None = None
     refused_draws: int | None = None
+    rung_scores: tuple[tuple[int, float], ...] = ()
+    """(budget, official score) of each rung whose net was kept (ladder trials, pruned ones too)."""
+
+
+def _kept_rungs(attrs: Mapping[str, Any]) -> tuple[tuple[int, float], ...]:
+    kept = {str(b) for b in attrs.get("artifact_rung_nets") or {}}
+    return tuple((int(r["budget"]), float(r["score"])) for r in attrs.get("rungs") or []
+                 if str(r.get("budget")) in kept and r.get("score") is not None)  # fmt: skip
 
 
 def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
@@ -530,6 +539,7 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 predicted_cost_s=a.get("predicted_cost_s"),
                 cause=a.get("cause"),
                 refused_draws=a.get("refused_draws"),
+                rung_scores=_kept_rungs(a),
             )
         )
     return rows
@@ -559,6 +569,31 @@ def best_single(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) 
     return max(done, key=lambda r: (r.value, -(r.end_s or 0.0)), default=None)
 
 
+@dataclasses.dataclass(frozen=True)
+class Net:
+    """A scored net: a COMPLETE trial's (``budget`` None) or a kept rung's (``autotune best``'s best single net)."""
+
+    score: float
+    number: int
+    budget: int | None
+
+
+def best_net(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> Net | None:
+    """The best net stored by ``t_s`` (a trial's value or a kept rung of any finished trial, as ``autotune best``
+    ranks them: ties to a trial's value, then the earlier trial); ``enqueued=False`` skips warm-start trials."""
+    best: tuple[tuple[float, int, int], Net] | None = None
+    for r in rows:
+        if r.end_s is None or r.end_s > t_s or r.state not in FINISHED or (not enqueued and r.warm_start is not None):
+            continue
+        nets = [Net(float(r.value), r.number, None)] if r.state == "COMPLETE" and r.value is not None else []
+        nets += [Net(score, r.number, budget) for budget, score in r.rung_scores]
+        for n in nets:
+            rank = (n.score, int(n.budget is None), -n.number)
+            if best is None or rank > best[0]:
+                best = (rank, n)
+    return None if best is None else best[1]
+
+
 def chosen_trial(rows: Sequence[TrialRow], t_s: float) -> TrialRow | None:
     """The trial whose configuration the arm would pick at ``t_s`` (see the module doc: race mean, else best)."""
     races: dict[int, list[float]] = {}
@@ -576,12 +611,13 @@ def chosen_trial(rows: Sequence[TrialRow], t_s: float) -> TrialRow | None:
 
 
 def running_best(rows: Iterable[TrialRow]) -> list[tuple[float, float]]:
-    """(minutes since the arm started, best score so far) at each improvement."""
+    """(minutes since the arm started, best single net so far — ``best_net``) at each improvement."""
+    rows = list(rows)
     points: list[tuple[float, float]] = []
-    for r in sorted(_complete_by(rows, math.inf), key=lambda r: r.end_s or 0.0):
-        assert r.value is not None and r.end_s is not None
-        if not points or r.value > points[-1][1]:
-            points.append((r.end_s / 60.0, float(r.value)))
+    for end in sorted({r.end_s for r in rows if r.end_s is not None and r.state in FINISHED}):
+        net = best_net(rows, end)
+        if net is not None and (not points or net.score > points[-1][1]):
+            points.append((end / 60.0, net.score))
     return points
 
 
@@ -631,14 +667,15 @@ def checkpoint_picks(rows: Sequence[TrialRow], minutes: Sequence[float]) -> list
     out = []
     for m in minutes:
         t = m * 60.0
-        best, free, chosen = best_single(rows, t), best_single(rows, t, enqueued=False), chosen_trial(rows, t)
+        best, free, chosen = best_net(rows, t), best_net(rows, t, enqueued=False), chosen_trial(rows, t)
         out.append(
             {
                 "minutes": m,
                 "finished": sum(1 for r in rows if r.state in FINISHED and r.end_s is not None and r.end_s <= t),
-                "best": best.value if best else None,
+                "best": best.score if best else None,
                 "best_trial": best.number if best else None,
-                "best_not_enqueued": free.value if free else None,
+                "best_rung": best.budget if best else None,
+                "best_not_enqueued": free.score if free else None,
                 "chosen_trial": chosen.number if chosen else None,
                 "chosen_config": chosen.config if chosen else None,
             }

@@ -3,6 +3,7 @@ the plain loop's space, one plain-loop worker and a calibration set on tiny trai
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import math
 import sys
@@ -133,6 +134,32 @@ def test_best_single_and_the_best_not_enqueued() -> None:
     assert [p["best"] for p in picks] == [75.0, 75.0, 75.0]
     assert [p["best_not_enqueued"] for p in picks] == [None, 72.0, 74.0]
     assert [p["finished"] for p in picks] == [2, 3, 4]
+
+
+def test_the_best_single_net_counts_kept_rungs() -> None:
+    """A kept rung of a finished trial (pruned too) that outscores every value is the checkpoint's best net, as
+    ``autotune best`` ranks it; a rung whose net was not kept does not count; ties go to a trial's value."""
+    study = optuna.create_study(direction="maximize")
+    t0 = time.time()
+    rungs = [{"budget": 10_000, "score": 76.0}, {"budget": 30_000, "score": 74.5}, {"budget": 90_000, "score": 80.0}]
+    study.add_trial(optuna.trial.create_trial(
+        state=optuna.trial.TrialState.PRUNED,
+        user_attrs={"rungs": rungs, "artifact_rung_nets": {"10000": "a", "30000": "b"}},  # 90k's net not kept
+    ))  # fmt: skip
+    read = sq.rows_from_trials(study.get_trials(), t0)
+    assert read[0].rung_scores == ((10_000, 76.0), (30_000, 74.5))
+    rows = [
+        dataclasses.replace(row(0, None, 100, state="PRUNED"), rung_scores=read[0].rung_scores),
+        row(1, 75.0, 50),
+        dataclasses.replace(row(2, 76.0, 200), rung_scores=((30_000, 76.0),)),
+        row(3, 90.0, 60, state="RUNNING"),
+    ]
+    assert sq.best_net(rows, 60) == sq.Net(75.0, 1, None)
+    assert sq.best_net(rows, 150) == sq.Net(76.0, 0, 10_000)
+    assert sq.best_net(rows, 300) == sq.Net(76.0, 2, None)  # a trial's value wins the tie with a rung
+    picks = sq.checkpoint_picks(rows, [2.5])
+    assert (picks[0]["best"], picks[0]["best_trial"], picks[0]["best_rung"]) == (76.0, 0, 10_000)
+    assert sq.running_best(rows) == [(50 / 60, 75.0), (100 / 60, 76.0)]
 
 
 def test_chosen_trial_prefers_the_raced_configuration() -> None:

@@ -272,3 +272,41 @@ def test_read_only_commands_create_no_storage_for_a_missing_study(tmp_path: Path
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "no study 'typo'" in err[0], (args, err)
     assert not (tmp_path / "runs").exists()
+
+
+def test_best_single_net_may_be_a_kept_rung(journal_study, capsys, tmp_path):
+    """A pruned ladder trial's kept rung that outscored every trial's value is the best single net: ``best``
+    names it and ``--export`` writes it with that rung's own settings (its budget, ε schedule scaled)."""
+    from autotune.search.ladder import rung_config
+    from autotune.search.records import best_net, read_study
+
+    storage, name, storages = journal_study
+    study = optuna.load_study(study_name=name, storage=storages.storage)
+    top = trial_config(0.004).replace(train_iterations=9000, learning_steps_burnin=900, learning_steps_total=4500)
+    net = init_convnet(top.expanded_layers, seed=7)
+    path = tmp_path / "rung.json"
+    path.write_text(autotune.dumps_net(net))
+    rung_id = optuna.artifacts.upload_artifact(artifact_store=storages.artifacts, file_path=str(path),
+                                               study_or_trial=study)  # fmt: skip
+    attrs = {
+        "config": top.to_mapping(), "seed": 77, "official_protocol": "v2-official",
+        "rungs": [{"budget": 1000, "score": 71.0}, {"budget": 3000, "score": VALUES[1] + 1.5}],
+        "artifact_rung_nets": {"3000": rung_id},  # the 1000 rung's net was not kept: not a candidate
+        "cause": "pruned after rung 1 (3,000 iterations, 72.00 mph) by the pruner",
+    }  # fmt: skip
+    study.add_trial(create_trial(state=TrialState.PRUNED, user_attrs=attrs, intermediate_values={1: 71.0, 3: 72.0}))
+    found = best_net(read_study(storages, name))
+    assert found == {"trial": 4, "budget": 3000, "score": VALUES[1] + 1.5, "state": "PRUNED", "seed": 77,
+                     "official_protocol": "v2-official"}  # fmt: skip
+
+    out_dir = tmp_path / "export"
+    code, out, err = run_cli(capsys, "best", name, "--storage", storage, "--export", str(out_dir), "--json")
+    assert code == 0, err
+    rec = json.loads(out)
+    assert rec["number"] == 1 and rec["best_net"] == found  # the best trial stays the best value
+    assert (out_dir / "net.json").read_text() == autotune.dumps_net(net)
+    loaded, settings = autotune.load_net_and_settings(out_dir / "net.json")
+    assert settings == rung_config(top, 3000).settings and settings.train_iterations == 3000
+    assert (out_dir / "net.js").read_text() == autotune.export_netjs(loaded, settings)
+    code, out, err = run_cli(capsys, "best", name, "--storage", storage)
+    assert "best single net: trial 4's 3,000-iteration rung (pruned trial), 72.00 mph" in out

@@ -44,9 +44,10 @@ def add_parser(subparsers: Any) -> None:
 
     p = subparsers.add_parser(
         "best",
-        help="the best trial's settings and score; --export writes its net.json, net.config.json, net.js",
-        description="The best trial's score, settings and seed; --export DIR writes its trained network "
-        "(net.json + net.config.json) and the site-ready net.js.",
+        help="the best trial and the best single net; --export writes that net's net.json, net.config.json, net.js",
+        description="The best trial's score, settings and seed, the best single net (a trial's value or a kept "
+        "ladder rung, whichever scored higher) and the seed race's best configuration; --export DIR writes the "
+        "best single net (net.json + net.config.json with its own settings) and the site-ready net.js.",
     )
     p.add_argument("study", help="study name")
     add_storage_arguments(p)
@@ -86,17 +87,20 @@ def _status(args: argparse.Namespace) -> int:
 
 
 def _best(args: argparse.Namespace) -> int:
-    from autotune.search.records import best_trial_record, export_best, race_summary
+    from autotune.search.records import best_net, best_trial_record, export_best_net, race_summary, read_study
 
     if args.export:
         output_dir(args.export, "--export")  # before anything is read
     storages = _open(args, args.study)
     record = best_trial_record(storages, args.study)
     race = race_summary(storages, args.study)
-    paths = export_best(storages, args.study, args.export) if args.export else {}
+    net = best_net(read_study(storages, args.study))
+    paths = export_best_net(storages, args.study, args.export) if args.export else {}
     if args.json:
         record["exported"] = {name: str(path) for name, path in paths.items()}
         record["race"] = race
+        if net is not None and net["budget"] is not None:  # a kept rung outscored every trial's value
+            record["best_net"] = net
         print(json.dumps(record))
         return 0
     print(
@@ -104,7 +108,14 @@ def _best(args: argparse.Namespace) -> int:
         f"({record.get('official_protocol', 'official')}), seed {record.get('seed')}, "
         f"{record.get('param_count', '?')} parameters"
     )
-    print("  (the best single net: the leaderboard's number, one seed's draw)")
+    if net is not None and net["budget"] is not None:
+        print(
+            f"best single net: trial {net['trial']}'s {net['budget']:,}-iteration rung ({net['state'].lower()} "
+            f"trial), {net['score']:.2f} mph: a complete training at that budget, scored officially"
+        )
+        print("  (the leaderboard's number, one seed's draw; --export writes this net)")
+    else:
+        print("  (the best single net: the leaderboard's number, one seed's draw)")
     if race is not None and race["winner"] is not None:
         w = race["winner"]
         sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""

@@ -41,8 +41,10 @@ __all__ = [
     "find_study",
     "snapshot",
     "artifact_text",
+    "best_net",
     "best_trial_record",
     "export_best",
+    "export_best_net",
     "export_trial",
     "format_summary",
     "rescore_trial",
@@ -219,7 +221,10 @@ def artifact_text(storages: Storages, trial: TrialRecord, key: str) -> str | Non
 
     ``RecordError`` when the id is there but the artifact store does not hold it.
     """
-    artifact_id = trial.user_attrs.get(key)
+    return _artifact_by_id(storages, trial, trial.user_attrs.get(key), key)
+
+
+def _artifact_by_id(storages: Storages, trial: TrialRecord, artifact_id: Any, key: str) -> str | None:
     if not artifact_id:
         return None
     with tempfile.TemporaryDirectory() as tmp:
@@ -319,6 +324,36 @@ def best_trial_record(storages: Storages, study_name: str) -> dict[str, Any]:
     return _record(best)
 
 
+def best_net(study: StudyRecord) -> dict[str, Any] | None:
+    """The best net the study trained and scored officially: over every COMPLETE trial's value and every kept
+    rung of every ladder trial (pruned ones too), the highest score; None before any.
+
+    A rung is a fresh, complete training at its budget, scored with the official protocol, and its net is kept
+    (``net_rung_<B>.json``): it is a net one could submit, like a model checkpoint kept for its evaluation score.
+    Ties go to a trial's value (its top rung), then to the earlier trial. Returns ``trial``, ``budget`` (None:
+    the trial's value), ``score``, ``state``, ``seed`` and ``official_protocol``.
+    """
+    from sim.protocols import OFFICIAL
+
+    best: tuple[tuple[float, int, int], dict[str, Any]] | None = None
+    for trial in study.trials:
+        attrs = trial.user_attrs
+        protocol = attrs.get(keys.OFFICIAL_PROTOCOL)
+        found: list[tuple[float, int | None]] = []
+        if trial.state == "COMPLETE" and trial.value is not None:
+            found.append((float(trial.value), None))
+        if protocol in OFFICIAL.values() and attrs.get(keys.ARTIFACT_RUNG_NETS):
+            kept = {str(b) for b in attrs[keys.ARTIFACT_RUNG_NETS]}
+            found += [(float(r[keys.SCORE]), int(r[keys.BUDGET])) for r in attrs.get(keys.RUNGS) or []
+                      if str(r.get(keys.BUDGET)) in kept and r.get(keys.SCORE) is not None]  # fmt: skip
+        for score, budget in found:
+            rank = (score, int(budget is None), -trial.number)
+            if best is None or rank > best[0]:
+                best = (rank, {"trial": trial.number, "budget": budget, "score": score, "state": trial.state,
+                               "seed": attrs.get(keys.SEED), "official_protocol": protocol})  # fmt: skip
+    return None if best is None else best[1]
+
+
 def _numbered(study: StudyRecord, number: int) -> TrialRecord:
     trials = study.trials
     if not 0 <= number < len(trials):
@@ -351,23 +386,40 @@ def export_best(storages: Storages, study_name: str, out_dir: str | Path) -> dic
     return _export(storages, best, out_dir)
 
 
-def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path) -> dict[str, Path]:
-    from autotune import TrainConfig, export_netjs, loads_net, write_net
+def export_best_net(storages: Storages, study_name: str, out_dir: str | Path) -> dict[str, Path]:
+    """Write the study's ``best_net`` — a COMPLETE trial's net or a kept rung's — as ``export_trial`` does; a
+    rung's ``net.config.json`` and ``net.js`` carry that rung's settings (its budget and the ε schedule scaled
+    to it, ``autotune.search.ladder.rung_config``)."""
+    study = read_study(storages, study_name)
+    found = best_net(study)
+    if found is None:
+        raise RecordError(f"study '{study_name}' in '{storages.url}': no scored net yet; nothing to export")
+    return _export(storages, study.trials[found["trial"]], out_dir, budget=found["budget"])
 
-    text = artifact_text(storages, trial, keys.ARTIFACT_NET_JSON)
+
+def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path, budget: int | None = None) -> dict[str, Path]:
+    from autotune import TrainConfig, export_netjs, loads_net, write_net
+    from autotune.search.ladder import rung_config
+
+    if budget is None:
+        text = artifact_text(storages, trial, keys.ARTIFACT_NET_JSON)
+        what = f"user attr {keys.ARTIFACT_NET_JSON}"
+    else:
+        ids = trial.user_attrs.get(keys.ARTIFACT_RUNG_NETS) or {}
+        text = _artifact_by_id(storages, trial, ids.get(str(budget)), f"{keys.ARTIFACT_RUNG_NETS}[{budget}]")
+        what = f"user attr {keys.ARTIFACT_RUNG_NETS} for {budget}"
     if text is None:
-        raise RecordError(
-            f"trial {trial.number}: no trained network stored (user attr {keys.ARTIFACT_NET_JSON} missing)"
-        )
+        raise RecordError(f"trial {trial.number}: no trained network stored ({what} missing)")
     if keys.CONFIG not in trial.user_attrs:
         raise RecordError(f"trial {trial.number}: no training config stored (user attr {keys.CONFIG} missing)")
     net = loads_net(text, where=f"trial {trial.number} net.json")
-    settings = TrainConfig.from_mapping(trial.user_attrs[keys.CONFIG]).settings
+    config = TrainConfig.from_mapping(trial.user_attrs[keys.CONFIG])
+    settings = (config if budget is None else rung_config(config, budget)).settings
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"net.json": out / "net.json", "net.config.json": out / "net.config.json", "net.js": out / "net.js"}
     write_net(paths["net.json"], net, settings)  # net.json + net.config.json, as `autotune train` writes them
-    netjs = artifact_text(storages, trial, keys.ARTIFACT_NET_JS)
+    netjs = artifact_text(storages, trial, keys.ARTIFACT_NET_JS) if budget is None else None
     paths["net.js"].write_text(netjs if netjs is not None else export_netjs(net, settings), encoding="utf-8")
     return paths
 

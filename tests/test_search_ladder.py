@@ -23,7 +23,7 @@ from autotune.search.cost import FEATURES, CostModel, Observation, features, pla
 from autotune.search.driver import Driver, WarmConfig, clip_params, make_pruner, make_sampler
 from autotune.search.gate import MAX_DRAWS, CostGatedSampler, distributions
 from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
-from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial
+from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial, static_policy
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
 from autotune.search.storage import open_storage
 from tests.conftest import ROOT, FakePool
@@ -101,35 +101,50 @@ def test_a_pruned_ladder_keeps_its_finished_rungs() -> None:
     assert outcome.value is None
 
 
-def test_a_policy_that_ignores_training_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
-    """Rungs that score exactly alike (median and mean) prune the trial with its cause; a net that learns climbs
-    on; the driver tells samplers the constraint, and TPE ranks the trial below every feasible pruned one."""
-    frozen = TINY.replace(learning_rate=0.0)  # sgd at rate 0: every rung's net is the initial one
-    outcome = run_trial(
-        TrialTask(number=0, config=frozen.to_mapping(), seed=3, rungs=(400, 1200), prune_unchanged=True),
-        lambda *a: False,
-    )
-    assert outcome.state == PRUNED and (outcome.cause or "").startswith("unchanged policy: rungs 0 and 1")
-    assert outcome.attrs[keys.UNCHANGED_POLICY] is True and set(outcome.rung_nets) == {400, 1200}
-    off = run_trial(TrialTask(number=0, config=frozen.to_mapping(), seed=3, rungs=(400, 1200)), lambda *a: False)
-    assert off.state == COMPLETE and keys.UNCHANGED_POLICY not in off.attrs  # the key turns it off
-    learns = TINY.replace(lanes_side=1, patches_ahead=4)
-    climbed = run_trial(
-        TrialTask(number=0, config=learns.to_mapping(), seed=3, rungs=(400, 1200), prune_unchanged=True),
-        lambda *a: False,
-    )
+def test_a_static_policy_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
+    """A rung whose net always picks one action, or that scores exactly as the rung before (median and mean),
+    prunes the trial with its cause; a net that learns climbs on; the driver tells samplers the constraint, and
+    TPE ranks the trial below every feasible pruned one; a race run is never pruned so."""
+
+    def climb(config: TrainConfig, prune: bool = True) -> Any:
+        task = TrialTask(number=0, config=config.to_mapping(), seed=3, rungs=(400, 1200), prune_static=prune)
+        return run_trial(task, lambda *a: False)
+
+    one_action = climb(TINY)  # this tiny net turns right at every greedy decision
+    assert one_action.state == PRUNED and set(one_action.rung_nets) == {400}
+    assert one_action.cause == ("static policy at rung 0 (400 iterations, 53.90 mph): the net chose right in 100.00% "
+                                "of its 67,000 greedy decisions (the policy ignores its input)")  # fmt: skip
+    assert one_action.attrs["rungs"][0][keys.GREEDY_ACTIONS] == [0, 0, 0, 0, 67_000]
+    frozen = TINY.replace(learning_rate=0.0)  # sgd at rate 0: every rung's net is the initial one (91 % right)
+    outcome = climb(frozen)
+    assert outcome.state == PRUNED and (outcome.cause or "").startswith("static policy at rung 1 (1,200 iterations")
+    assert "the same official score as at 400 iterations, to the digit" in (outcome.cause or "")
+    assert outcome.attrs[keys.STATIC_POLICY] is True and set(outcome.rung_nets) == {400, 1200}
+    off = climb(frozen, prune=False)
+    assert off.state == COMPLETE and keys.STATIC_POLICY not in off.attrs  # the key turns it off
+    climbed = climb(TINY.replace(lanes_side=1, patches_ahead=4))  # left and right, the mix changing with training
     assert climbed.state == COMPLETE, climbed.cause
+    assert [sum(r[keys.GREEDY_ACTIONS]) > 0 for r in climbed.attrs["rungs"]] == [True, True]
+
+    def rung(greedy: list[int], score: float = 70.0, mean: float = 69.5) -> dict[str, Any]:
+        return {keys.BUDGET: 1, keys.SCORE: score, keys.OFFICIAL_MEAN: mean, keys.GREEDY_ACTIONS: greedy}
+
+    assert static_policy([rung([0, 99, 0, 1, 0])]) is not None  # 99 %: static
+    assert static_policy([rung([0, 98, 0, 1, 1])]) is None and static_policy([rung([])]) is None
+    assert static_policy([rung([1, 50, 0, 49, 0]), rung([1, 50, 0, 49, 0], mean=69.6)]) is None  # mean moved
 
     spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
-    assert spec.ladder_prune_unchanged and "prune_unchanged" not in spec.to_dict()["ladder"]
+    assert spec.ladder_prune_static and "prune_static" not in spec.to_dict()["ladder"]
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
     driver.pool = FakePool()
     driver._t0 = time.perf_counter()  # noqa: SLF001
-    assert driver._launch_next(0) and driver.pool.tasks[0].prune_unchanged  # noqa: SLF001
+    assert driver._launch_next(0) and driver.pool.tasks[0].prune_static  # noqa: SLF001
+    study.enqueue_trial({}, user_attrs={keys.RACE_OF: 0, keys.CONFIG: TINY.to_mapping(), keys.SEED: 5})
+    assert driver._launch_next(1) and not driver.pool.tasks[1].prune_static  # noqa: SLF001 - a race run
     told = []
     for result in (outcome, dataclasses.replace(outcome, attrs={k: v for k, v in outcome.attrs.items()
-                                                                 if k != keys.UNCHANGED_POLICY})):  # fmt: skip
+                                                                 if k != keys.STATIC_POLICY})):  # fmt: skip
         trial = study.ask()
         for step, rung in ((1, 52.0), (3, 52.0)):
             trial.report(rung, step)
@@ -143,12 +158,12 @@ def test_a_policy_that_ignores_training_is_pruned_and_told_infeasible(tmp_path: 
     assert [t.number for t in below] == [plain_t.number] and frozen_t.number in [t.number for t in above]
 
     data = _spec().to_dict()
-    data["ladder"]["prune_unchanged"] = "yes"
-    with pytest.raises(SpecError, match=r"\[ladder\] prune_unchanged: must be true or false"):
+    data["ladder"]["prune_static"] = "yes"
+    with pytest.raises(SpecError, match=r"\[ladder\] prune_static: must be true or false"):
         parse_spec(data, source="bad.toml")
-    data["ladder"]["prune_unchanged"] = False
+    data["ladder"]["prune_static"] = False
     off_spec = parse_spec(data)
-    assert not off_spec.ladder_prune_unchanged and off_spec.to_dict()["ladder"]["prune_unchanged"] is False
+    assert not off_spec.ladder_prune_static and off_spec.to_dict()["ladder"]["prune_static"] is False
 
 
 def test_the_study_deadline_stops_a_trial_without_a_truncated_score() -> None:

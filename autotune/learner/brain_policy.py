@@ -90,9 +90,10 @@ N_GCFG = 6
 # gflt (float64) fields
 F_EPSILON = 0
 N_GFLT = 1
-# per-world state
-W_CACHE, W_COPIED = range(2)
-N_WSTATE = 2
+# per-world state: the Gaussian cache flag, the agents' re-copy flag, then the greedy choices per action (all
+# brains of the world; counted, never drawn from: the scores do not depend on them)
+W_CACHE, W_COPIED, W_GREEDY = range(3)
+N_WSTATE = W_GREEDY + NUM_ACTIONS
 # per-brain state
 B_FP, B_HEAD = range(2)
 N_BSTATE = 2
@@ -115,6 +116,7 @@ def _decide(inputs, mr, w, b, codes, params, gcfg, gflt, wstate, bstate, states,
             window_input(netin, inputs, states[w, b], actions[w, b], head, tw, ns)
             out = forward_flat(codes, params, netin, buf)
             action = argmax_js(buf, out, NUM_ACTIONS)
+            wstate[w, W_GREEDY + action] += 1
     else:
         action = warmup_action_mr(mr, w, gcfg[G_RULESET] == RULESET_V2)
     bstate[w, b, B_HEAD] = window_push(states[w, b], actions[w, b], head, inputs, action, ns)
@@ -304,6 +306,12 @@ class BrainPolicy:
         return state
 
     @property
+    def greedy_actions(self) -> np.ndarray:
+        """How often each action (0–4) was the net's greedy choice since the last reset, over every world and
+        brain (ε_test's random moves and the warm-up's not counted): one nonzero entry means a constant policy."""
+        return self.wstate[:, W_GREEDY:].sum(axis=0)
+
+    @property
     def final_gauss_cache(self) -> int:
         """World 0's Gaussian cache flag now (after an evaluation: what the next build in that process sees)."""
         return int(self.wstate[0, W_CACHE])
@@ -416,18 +424,20 @@ def evaluate_brain(
     name: str | None = None,
     gauss_cache: int = 0,
     engine_load: bool = True,
+    greedy_actions: np.ndarray | None = None,
 ) -> EvalResult:
     """Evaluate a trained net in ``engine`` with the deepqlearn brain (``temporal_window``, ε = ``epsilon``).
 
     ``gauss_cache``: convnetjs's Gaussian cache flag before the brain build (0 = fresh process, see
     ``BrainPolicy.prepare``); ``engine_load``: v1-original only, whether the engine's 60 construction
     draws follow the brain build (evaluate.js: yes; the learner_scores.json harness: no).
+    ``greedy_actions`` (5 int64s), when given, receives ``BrainPolicy.greedy_actions`` of the evaluation.
     """
     proto = PROTOCOLS.get(protocol)  # (sim.protocols.evaluate refuses a protocol of the other engine)
     policy = BrainPolicy(net, engine, temporal_window, epsilon, name=name)
     n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
     stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
-    return evaluate(
+    result = evaluate(
         engine,
         policy,
         protocol,
@@ -439,6 +449,9 @@ def evaluate_brain(
         policy_name=policy.name,
         progress=progress,
     )
+    if greedy_actions is not None:
+        greedy_actions[:] = policy.greedy_actions
+    return result
 
 
 __all__ = [

@@ -13,6 +13,8 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from autotune.convnet.netjson import dumps_net, loads_net
 from autotune.learner.brain_policy import evaluate_brain
 from autotune.learner.config import TrainConfig
@@ -38,6 +40,7 @@ def evaluate_official(
     engine_load: bool = True,
     gauss_cache: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    greedy_actions: np.ndarray | None = None,
 ) -> EvalResult:
     """Exact official-protocol evaluation of a trained net (after the JSON text round trip).
 
@@ -49,7 +52,8 @@ def evaluate_official(
     draws: ``engine_load=False``, see ``BrainPolicy.prepare``). ``other_agents`` replaces the
     config's (v2). ``gauss_cache``: convnetjs's Gaussian cache flag before the brain build (0 in a
     fresh process; the learner_scores.json harness evaluated in the training's process, so there it
-    is the training's final flag).
+    is the training's final flag). ``greedy_actions`` (5 int64s), when given, receives how often each action
+    was the net's greedy choice (``BrainPolicy.greedy_actions``; the scores do not depend on it).
     """
     net = loads_net(dumps_net(convnet))  # train.js saves with toJSON, evaluate.js loads with fromJSON
     engine = config.engine_config
@@ -65,4 +69,5 @@ def evaluate_official(
         engine_load=engine_load,
         gauss_cache=gauss_cache,
         progress=progress,
+        greedy_actions=greedy_actions,
     )

@@ -746,7 +746,8 @@ class Driver:
             number=trial.number, config=config.to_mapping(), seed=int(seed), report_points=e.report_points,
             quick_runs=e.quick_runs, quick_frames=e.quick_frames,
             final_protocol="" if full is not None and not race else e.final_protocol,  # '': its ruleset's official
-            timeout_s=st.trial_timeout_s, rungs=rungs, prune_unchanged=self.spec.ladder_prune_unchanged,
+            timeout_s=st.trial_timeout_s, rungs=rungs,
+            prune_static=self.spec.ladder_prune_static and not race,  # a race run's score counts, whatever it is
             deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,
         )  # fmt: skip
         trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
@@ -788,7 +789,7 @@ class Driver:
         assert self.study is not None
         for key, value in outcome.attrs.items():
             trial.set_user_attr(key, _jsonable(value))
-        if outcome.attrs.get(keys.UNCHANGED_POLICY):  # a told constraint: TPE ranks infeasible trials last
+        if outcome.attrs.get(keys.STATIC_POLICY):  # a told constraint: TPE ranks infeasible trials last
             trial.set_constraint(keys.POLICY_LEARNS, 1.0)
         if outcome.rung_nets:  # every finished rung's net, pruned trials included
             ids = {}

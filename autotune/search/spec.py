@@ -235,9 +235,9 @@ class StudySpec:
     ladder_min_top: int = 0
     """[ladder] min_top [iterations]: the rung every sampled draw must afford (the cost gate prices the ladder up
     to it); above it a trial climbs while its predicted cost fits the cap. 0 = the last rung (the whole ladder)."""
-    ladder_prune_unchanged: bool = True
-    """[ladder] prune_unchanged: prune a trial whose official score at a rung equals the previous rung's exactly
-    (its policy ignored the extra training) and tell samplers it is infeasible."""
+    ladder_prune_static: bool = True
+    """[ladder] prune_static: prune a trial at a rung whose policy is static — one action in ≥ 99 % of the net's
+    greedy choices, or the previous rung's official score to the digit — and tell samplers it is infeasible."""
     warm_start: WarmStartSection = WarmStartSection()
     """Crowd prior / earlier study copied into the sampler's history."""
     source: str = ""
@@ -285,8 +285,8 @@ class StudySpec:
         ladder: dict[str, Any] = {"rungs": list(self.ladder)}
         if self.ladder_min_top:  # left out at its default, so a study stored before the key existed still matches
             ladder["min_top"] = self.ladder_min_top
-        if not self.ladder_prune_unchanged:  # likewise
-            ladder["prune_unchanged"] = False
+        if not self.ladder_prune_static:  # likewise
+            ladder["prune_static"] = False
         return {
             "study": dataclasses.asdict(self.study),
             "fixed": dict(self.fixed),
@@ -374,10 +374,10 @@ def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: s
     evaluation = _parse_evaluation(data.get("evaluation", {}), source, study.ruleset, ladder="ladder" in data)
     resources = _parse_resources(data.get("resources", {}), source)
     space = tuple(_parse_dimension(name, entry, source, study.ruleset) for name, entry in data.get("space", {}).items())
-    ladder, min_top, prune_unchanged = _parse_ladder(data.get("ladder"), source)
+    ladder, min_top, prune_static = _parse_ladder(data.get("ladder"), source)
     warm = _parse_warm_start(data.get("warm_start", {}), source)
     fixed = _parse_fixed(data.get("fixed", {}), source, study.ruleset, {d.name for d in space})
-    spec = StudySpec(study, fixed, space, evaluation, resources, ladder, min_top, prune_unchanged, warm, source)
+    spec = StudySpec(study, fixed, space, evaluation, resources, ladder, min_top, prune_static, warm, source)
     _check_combination(spec)
     return spec
 
@@ -386,7 +386,7 @@ _SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "study": tuple(f.name for f in dataclasses.fields(StudySection)),
     "evaluation": tuple(f.name for f in dataclasses.fields(EvaluationSection)),
     "resources": tuple(f.name for f in dataclasses.fields(ResourcesSection)),
-    "ladder": ("rungs", "min_top", "prune_unchanged"),
+    "ladder": ("rungs", "min_top", "prune_static"),
     "warm_start": tuple(f.name for f in dataclasses.fields(WarmStartSection)),
 }
 
@@ -446,7 +446,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
 
 
 def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int, bool]:
-    """``(rungs, min_top, prune_unchanged)``; min_top 0 when the table leaves it out (the last rung)."""
+    """``(rungs, min_top, prune_static)``; min_top 0 when the table leaves it out (the last rung)."""
     if table is None:
         return (), 0, True
     _check_keys(table, "ladder", src)
@@ -467,9 +467,9 @@ def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int, bool]:
             f"{src}: [ladder] min_top: must be one of the rungs {values}, got {min_top!r}; e.g. "
             f"min_top = {values[min(2, len(values) - 1)]}, or leave it out (the last rung)"
         )
-    prune = table.get("prune_unchanged", True)
+    prune = table.get("prune_static", True)
     if not isinstance(prune, bool):
-        raise SpecError(f"{src}: [ladder] prune_unchanged: must be true or false, got {prune!r}")
+        raise SpecError(f"{src}: [ladder] prune_static: must be true or false, got {prune!r}")
     return tuple(values), (0 if min_top == values[-1] else int(min_top)), prune
 
 

@@ -146,8 +146,8 @@ def test_a_static_policy_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
     for result in (outcome, dataclasses.replace(outcome, attrs={k: v for k, v in outcome.attrs.items()
                                                                  if k != keys.STATIC_POLICY})):  # fmt: skip
         trial = study.ask()
-        for step, rung in ((1, 52.0), (3, 52.0)):
-            trial.report(rung, step)
+        for step, value in ((1, 52.0), (3, 52.0)):
+            trial.report(value, step)
         driver._finish(trial, result)  # noqa: SLF001
         told.append(trial.number)
     frozen_t, plain_t = (study.trials[n] for n in told)

@@ -234,7 +234,7 @@ def test_the_gate_prices_a_draws_whole_ladder(tmp_path: Path) -> None:
     does not is refused (its value would be a short rung's score, not comparable with the others')."""
     spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
 
     def price(params: dict[str, Any]) -> float:
         cost = driver._price(params)  # noqa: SLF001 - the gate's question, as the driver asks it
@@ -273,7 +273,7 @@ def test_min_top_gates_the_ladder_below_it_and_cheap_draws_climb_above(tmp_path:
     assert spec.gated_rungs == 2 and parse_spec(spec.to_dict()) == dataclasses.replace(spec, source="spec")
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
     driver._fitted_on = 0  # noqa: SLF001 - keep the model above (no finished trial to refit on)
     small, large = (space.encode(spec, TINY.replace(layers=layers)) for layers in ("fc:2:relu", "fc:8:relu|fc:8:tanh"))
     price = {}
@@ -313,6 +313,25 @@ def test_min_top_must_be_a_rung() -> None:
         parse_spec(data, source="bad.toml")
     data["ladder"]["min_top"] = 1200  # the last rung: the default, stored as such
     assert parse_spec(data).ladder_min_top == 0 and "min_top" not in parse_spec(data).to_dict()["ladder"]
+
+
+def test_the_prior_cost_model_predicts_measured_rungs() -> None:
+    """On 80 measured rungs of the benchmark studies (tests/data/cost_rungs.json.gz) the prior's median error is
+    within 15 %, and a wide view evaluated greedily costs more than the same view with ε_test 0.9 (the Gaussian
+    fill of every greedy decision's input Vol, replayed by the exact evaluation)."""
+    from tests.conftest import load_json
+
+    rungs = load_json(ROOT / "tests" / "data" / "cost_rungs.json.gz")["rungs"]
+    prior = CostModel.prior()
+    errors = sorted(abs(prior.predict(TrainConfig.from_mapping(r["config"])) - r["seconds"]) / r["seconds"]
+                    for r in rungs)  # fmt: skip
+    assert len(errors) == 80 and errors[40] < 0.15
+    wide = TINY.replace(lanes_side=10, patches_ahead=60, patches_behind=20, temporal_window=3, other_agents=10)
+    greedy, mostly_random = (prior.predict(wide.replace(epsilon_test_time=e)) for e in (0.0, 0.9))
+    assert greedy - mostly_random == pytest.approx(
+        0.9 * 11 * wide.net_inputs * prior.coef[FEATURES.index("eval_inputs")]
+    )
+    assert greedy > 1.5 * mostly_random
 
 
 def test_cost_model_fits_rungs() -> None:
@@ -443,7 +462,7 @@ def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -
     spec = _spec(race_configs=2, race_seeds=1).with_overrides(storage=str(tmp_path / "j.log"))
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
     driver._fitted_on = len(study.trials)  # noqa: SLF001 - keep the model above (no refit on these trials)
     dists = distributions(spec)
     layouts = {"fc:8:relu": 70.0, "fc:8:relu|fc:8:tanh": 72.0, "": 60.0, "fc:2:relu": 65.0}

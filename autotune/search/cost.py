@@ -7,8 +7,10 @@ non-negative work terms whose coefficients are seconds per unit of work:
 * training, per decision: the simulator step (∝ 1 + other_agents: every car moves), the input window
   and the greedy forward pass (∝ inputs, ∝ params), and once learning started one batch update
   (∝ params × batch: the s₀ and s₁ halves through the net, then the backward pass);
-* the official evaluation: a fixed part and one forward pass per decision of every red car
-  (∝ (1 + other_agents) and ∝ params × (1 + other_agents)).
+* the official evaluation: a fixed part, one forward pass per decision of every red car
+  (∝ (1 + other_agents) and ∝ params × (1 + other_agents)), and per greedy decision the input ``Vol``
+  convnetjs allocates, whose Gaussian fill the exact evaluation replays draw for draw
+  (∝ (1 + other_agents) × (1 − epsilon_test_time) × inputs: a wide view costs more than a wide net).
 
 ``CostModel.prior()`` holds coefficients measured on the 2-core reference machine (see
 ``PRIOR``); ``fit`` refits them by non-negative least squares on *relative* errors over the study's
@@ -38,22 +40,27 @@ FEATURES = (
     "eval_fixed",  # 1 per rung: the official evaluation's set-up (engine, brain build)
     "eval_cars",  # 1+K: cars simulated by the official runs
     "eval_forward",  # params·(1+K): one forward per red car per decision of the official runs
+    "eval_inputs",  # (1+K)·(1−ε_test)·inputs: the Gaussian fill of each greedy decision's input Vol
 )
 """The model's work terms, in the order of its coefficients."""
 
 PRIOR = np.array([
-    8.7e-5,  # s per decision (the learn call and the simulator step of the ego)
-    4.4e-6,  # s per car-decision
-    5.1e-8,  # s per input per decision
-    3.4e-10,  # s per weight per decision (greedy forward, numpy views)
-    2.1e-10,  # s per weight × batch sample per update (2B-row forward + backward, torch)
-    0.77,  # s per official evaluation (engine + brain build, 500 runs of 2,000 frames)
-    0.33,  # s per red car of the official runs
-    7.4e-6,  # s per weight per red car (~33,500 float64 forward passes per car)
+    6.32e-5,  # s per decision (the learn call and the simulator step of the ego)
+    3.86e-7,  # s per car-decision
+    2.04e-8,  # s per input per decision
+    6.39e-10,  # s per weight per decision (greedy forward, numpy views)
+    1.09e-10,  # s per weight × batch sample per update (2B-row forward + backward, torch)
+    0.764,  # s per official evaluation (engine + brain build, 500 runs of 2,000 frames)
+    0.00631,  # s per red car of the official runs
+    2.66e-6,  # s per weight per red car (~33,500 float64 forward passes per car)
+    2.57e-4,  # s per input per red car at ε_test 0 (the Gaussian fill of ~33,500 input Vols per car)
 ])  # fmt: skip
-"""Prior coefficients [s per unit of each FEATURES term]: fitted to 28 rungs of a 10-minute paper.toml study and
-a ladder smoke study on the 2-core reference machine (one thread per trial, load 2–4: conservative on a quiet
-machine). The first guess from 10 single-rung probes under-predicted those rungs by a median 50 %."""
+"""Prior coefficients [s per unit of each FEATURES term]: the relative least-squares fit (non-negative) to the
+2,094 rungs of the search-quality studies of 25 Nov 2026 (paper.toml and quick.toml, cold and with the crowd
+prior, 2 workers on the 2-core reference machine, load about 2): median error 11.7 % (90th percentile 34 %) on
+those rungs. Without the ``eval_inputs`` term the best fit was off by a median 16.4 % (90th percentile 47 %) —
+the official evaluation's own time, by 23 % against 8 % — and the earlier 8-term prior, fitted to 28 rungs, by
+a median 94 % (over-predicting)."""
 
 _PRIOR_WEIGHT = 4.0
 """The prior counts as this many observations (spread over its anchor configurations)."""
@@ -66,8 +73,9 @@ def features(config: TrainConfig, *, evaluated: bool = True) -> np.ndarray:
     p = float(config.param_count)
     learning = max(0.0, b - config.start_learn_threshold)
     ev = 1.0 if evaluated else 0.0
+    greedy = 1.0 - config.epsilon_test_time
     return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,
-                     ev, ev * cars, ev * p * cars])  # fmt: skip
+                     ev, ev * cars, ev * p * cars, ev * cars * greedy * config.net_inputs])  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

@@ -114,7 +114,7 @@ def test_a_static_policy_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
     assert one_action.state == PRUNED and set(one_action.rung_nets) == {400}
     assert one_action.cause == ("static policy at rung 0 (400 iterations, 53.90 mph): the net chose right in 100.00% "
                                 "of its 67,000 greedy decisions (the policy ignores its input)")  # fmt: skip
-    assert one_action.attrs["rungs"][0][keys.GREEDY_ACTIONS] == [0, 0, 0, 0, 67_000]
+    assert one_action.attrs["rungs"][0][keys.GREEDY_CHOICES] == [0, 0, 0, 0, 67_000]
     frozen = TINY.replace(learning_rate=0.0)  # sgd at rate 0: every rung's net is the initial one (91 % right)
     outcome = climb(frozen)
     assert outcome.state == PRUNED and (outcome.cause or "").startswith("static policy at rung 1 (1,200 iterations")
@@ -124,10 +124,10 @@ def test_a_static_policy_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
     assert off.state == COMPLETE and keys.STATIC_POLICY not in off.attrs  # the key turns it off
     climbed = climb(TINY.replace(lanes_side=1, patches_ahead=4))  # left and right, the mix changing with training
     assert climbed.state == COMPLETE, climbed.cause
-    assert [sum(r[keys.GREEDY_ACTIONS]) > 0 for r in climbed.attrs["rungs"]] == [True, True]
+    assert [sum(r[keys.GREEDY_CHOICES]) > 0 for r in climbed.attrs["rungs"]] == [True, True]
 
     def rung(greedy: list[int], score: float = 70.0, mean: float = 69.5) -> dict[str, Any]:
-        return {keys.BUDGET: 1, keys.SCORE: score, keys.OFFICIAL_MEAN: mean, keys.GREEDY_ACTIONS: greedy}
+        return {keys.BUDGET: 1, keys.SCORE: score, keys.OFFICIAL_MEAN: mean, keys.GREEDY_CHOICES: greedy}
 
     assert static_policy([rung([0, 99, 0, 1, 0])]) is not None  # 99 %: static
     assert static_policy([rung([0, 98, 0, 1, 1])]) is None and static_policy([rung([])]) is None

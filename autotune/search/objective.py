@@ -253,7 +253,7 @@ def _run_ladder(
             keys.BUDGET: int(budget), keys.SCORE: score, keys.SECONDS: time.perf_counter() - t_rung,
             keys.TRAIN_SECONDS: result.train_seconds, keys.EVAL_SECONDS: time.perf_counter() - te,
             keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std, keys.FRAMES: int(result.frames),
-            keys.GREEDY_ACTIONS: [int(n) for n in greedy],
+            keys.GREEDY_CHOICES: [int(n) for n in greedy],
         })  # fmt: skip
         attrs[keys.CURVE] = [
             {keys.STEP: k, keys.FRAMES: int(p.frames), keys.QUICK_SCORE: None, keys.MEAN_REWARD: _finite(p.mean_reward),
@@ -298,7 +298,7 @@ def static_policy(rungs: Sequence[Mapping[str, Any]]) -> str | None:
     from sim.policies import ACTION_NAMES
 
     last = rungs[-1]
-    greedy = last.get(keys.GREEDY_ACTIONS) or []
+    greedy = last.get(keys.GREEDY_CHOICES) or []
     total = sum(greedy)
     if total and max(greedy) >= STATIC_SHARE * total:
         action = ACTION_NAMES[greedy.index(max(greedy))]

@@ -513,14 +513,10 @@ class TrialRow:
     """(budget, official score) of each rung whose net was kept (ladder trials, pruned ones too)."""
 
 
-def _kept_rungs(attrs: Mapping[str, Any]) -> tuple[tuple[int, float], ...]:
-    kept = {str(b) for b in attrs.get("artifact_rung_nets") or {}}
-    return tuple((int(r["budget"]), float(r["score"])) for r in attrs.get("rungs") or []
-                 if str(r.get("budget")) in kept and r.get("score") is not None)  # fmt: skip
-
-
 def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
     """TrialRows of Optuna FrozenTrials, times relative to ``t0`` (epoch seconds)."""
+    from autotune.search.records import kept_rungs
+
     rows = []
     for t in trials:
         a = t.user_attrs
@@ -539,7 +535,7 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 predicted_cost_s=a.get("predicted_cost_s"),
                 cause=a.get("cause"),
                 refused_draws=a.get("refused_draws"),
-                rung_scores=_kept_rungs(a),
+                rung_scores=tuple(kept_rungs(a)),
             )
         )
     return rows
@@ -579,8 +575,10 @@ class Net:
 
 
 def best_net(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> Net | None:
-    """The best net stored by ``t_s`` (a trial's value or a kept rung of any finished trial, as ``autotune best``
-    ranks them: ties to a trial's value, then the earlier trial); ``enqueued=False`` skips warm-start trials."""
+    """The best net stored by ``t_s`` (a trial's value or a kept rung of any finished trial, ranked as ``autotune
+    best`` ranks them: ``records.net_rank``); ``enqueued=False`` skips warm-start trials."""
+    from autotune.search.records import net_rank
+
     best: tuple[tuple[float, int, int], Net] | None = None
     for r in rows:
         if r.end_s is None or r.end_s > t_s or r.state not in FINISHED or (not enqueued and r.warm_start is not None):
@@ -588,7 +586,7 @@ def best_net(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> 
         nets = [Net(float(r.value), r.number, None)] if r.state == "COMPLETE" and r.value is not None else []
         nets += [Net(score, r.number, budget) for budget, score in r.rung_scores]
         for n in nets:
-            rank = (n.score, int(n.budget is None), -n.number)
+            rank = net_rank(n.score, n.budget, n.number)
             if best is None or rank > best[0]:
                 best = (rank, n)
     return None if best is None else best[1]

@@ -144,10 +144,15 @@ def test_the_best_single_net_counts_kept_rungs() -> None:
     rungs = [{"budget": 10_000, "score": 76.0}, {"budget": 30_000, "score": 74.5}, {"budget": 90_000, "score": 80.0}]
     study.add_trial(optuna.trial.create_trial(
         state=optuna.trial.TrialState.PRUNED,
-        user_attrs={"rungs": rungs, "artifact_rung_nets": {"10000": "a", "30000": "b"}},  # 90k's net not kept
+        user_attrs={"rungs": rungs, "artifact_rung_nets": {"10000": "a", "30000": "b"},  # 90k's net not kept
+                    "official_protocol": "v2-official"},
+    ))  # fmt: skip
+    study.add_trial(optuna.trial.create_trial(  # scored with another protocol: its rungs are no official nets
+        state=optuna.trial.TrialState.PRUNED,
+        user_attrs={"rungs": rungs, "artifact_rung_nets": {"10000": "a"}, "official_protocol": "custom"},
     ))  # fmt: skip
     read = sq.rows_from_trials(study.get_trials(), t0)
-    assert read[0].rung_scores == ((10_000, 76.0), (30_000, 74.5))
+    assert read[0].rung_scores == ((10_000, 76.0), (30_000, 74.5)) and read[1].rung_scores == ()
     rows = [
         dataclasses.replace(row(0, None, 100, state="PRUNED"), rung_scores=read[0].rung_scores),
         row(1, 75.0, 50),

@@ -280,7 +280,7 @@ STATIC_SHARE = 0.99
 """A net whose most frequent greedy action makes at least this share of its greedy choices is static.
 
 Measured on the benchmark studies' nets (v2-official): every net that scored 73.5 or more chose accelerate in
-50–77 % of its greedy decisions and changed lanes in most of the rest; the leaders of cold studies on the full
+42–77 % of its greedy decisions and changed lanes in most of the rest; the leaders of cold studies on the full
 space chose accelerate in 99.4–100 % and scored 72.0–73.3 — "always accelerate", mixed with ε_test's random
 moves, is an attractor of the space that no further training leaves (the 100 % one scored 73.21 on three
 fresh seeds, to the digit)."""

@@ -42,6 +42,8 @@ __all__ = [
     "snapshot",
     "artifact_text",
     "best_net",
+    "kept_rungs",
+    "net_rank",
     "best_trial_record",
     "export_best",
     "export_best_net",
@@ -324,33 +326,45 @@ def best_trial_record(storages: Storages, study_name: str) -> dict[str, Any]:
     return _record(best)
 
 
+def kept_rungs(user_attrs: Mapping[str, Any]) -> list[tuple[int, float]]:
+    """(budget, official score) of each rung of a ladder trial whose net was kept (``artifact_rung_nets``) and
+    scored with its ruleset's official protocol; pruned trials' rungs included."""
+    from sim.protocols import OFFICIAL
+
+    kept = {str(b) for b in user_attrs.get(keys.ARTIFACT_RUNG_NETS) or {}}
+    if not kept or user_attrs.get(keys.OFFICIAL_PROTOCOL) not in OFFICIAL.values():
+        return []
+    return [(int(r[keys.BUDGET]), float(r[keys.SCORE])) for r in user_attrs.get(keys.RUNGS) or []
+            if str(r.get(keys.BUDGET)) in kept and r.get(keys.SCORE) is not None]  # fmt: skip
+
+
+def net_rank(score: float, budget: int | None, number: int) -> tuple[float, int, int]:
+    """Sort key of a scored net (higher is better): the score, then a trial's value (``budget`` None) over a
+    rung's, then the earlier trial."""
+    return (score, int(budget is None), -number)
+
+
 def best_net(study: StudyRecord) -> dict[str, Any] | None:
     """The best net the study trained and scored officially: over every COMPLETE trial's value and every kept
-    rung of every ladder trial (pruned ones too), the highest score; None before any.
+    rung of every ladder trial (``kept_rungs``), the highest score (``net_rank``); None before any.
 
     A rung is a fresh, complete training at its budget, scored with the official protocol, and its net is kept
     (``net_rung_<B>.json``): it is a net one could submit, like a model checkpoint kept for its evaluation score.
-    Ties go to a trial's value (its top rung), then to the earlier trial. Returns ``trial``, ``budget`` (None:
-    the trial's value), ``score``, ``state``, ``seed`` and ``official_protocol``.
+    Returns ``trial``, ``budget`` (None: the trial's value), ``score``, ``state``, ``seed`` and
+    ``official_protocol``.
     """
-    from sim.protocols import OFFICIAL
-
     best: tuple[tuple[float, int, int], dict[str, Any]] | None = None
     for trial in study.trials:
         attrs = trial.user_attrs
-        protocol = attrs.get(keys.OFFICIAL_PROTOCOL)
-        found: list[tuple[float, int | None]] = []
+        found: list[tuple[float, int | None]] = [(score, budget) for budget, score in kept_rungs(attrs)]
         if trial.state == "COMPLETE" and trial.value is not None:
             found.append((float(trial.value), None))
-        if protocol in OFFICIAL.values() and attrs.get(keys.ARTIFACT_RUNG_NETS):
-            kept = {str(b) for b in attrs[keys.ARTIFACT_RUNG_NETS]}
-            found += [(float(r[keys.SCORE]), int(r[keys.BUDGET])) for r in attrs.get(keys.RUNGS) or []
-                      if str(r.get(keys.BUDGET)) in kept and r.get(keys.SCORE) is not None]  # fmt: skip
         for score, budget in found:
-            rank = (score, int(budget is None), -trial.number)
+            rank = net_rank(score, budget, trial.number)
             if best is None or rank > best[0]:
                 best = (rank, {"trial": trial.number, "budget": budget, "score": score, "state": trial.state,
-                               "seed": attrs.get(keys.SEED), "official_protocol": protocol})  # fmt: skip
+                               "seed": attrs.get(keys.SEED),
+                               "official_protocol": attrs.get(keys.OFFICIAL_PROTOCOL)})  # fmt: skip
     return None if best is None else best[1]
 
 

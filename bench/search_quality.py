@@ -319,7 +319,7 @@ def loop_job(job: Mapping[str, Any]) -> dict[str, Any]:
     prune = bool(job["prune"])
     sampler = optuna.samplers.TPESampler(seed=seed) if prune else optuna.samplers.RandomSampler(seed=seed)
     pruner = optuna.pruners.MedianPruner() if prune else optuna.pruners.NopPruner()
-    storage = JournalStorage(JournalFileBackend(job["storage"]))
+    storage = JournalStorage(JournalFileBackend(str(Path(job["storage"]).absolute())))  # lock links resolve
     study = optuna.load_study(study_name=job["study"], storage=storage, sampler=sampler, pruner=pruner)
     deadline = float(job["deadline"])
     ran = 0
@@ -549,7 +549,7 @@ def read_rows(journal: Path, study_name: str, t0: float) -> list[TrialRow]:
 
     if not journal.exists():
         return []
-    storage = JournalStorage(JournalFileBackend(str(journal)))
+    storage = JournalStorage(JournalFileBackend(str(journal.absolute())))
     if study_name not in [s.study_name for s in storage.get_all_studies()]:
         return []
     return rows_from_trials(optuna.load_study(study_name=study_name, storage=storage).get_trials(deepcopy=False), t0)
@@ -849,7 +849,8 @@ def run_plain(
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     journal, name = run_dir / "journal.log", f"sq-{arm}-s{seed}"
-    optuna.create_study(study_name=name, storage=JournalStorage(JournalFileBackend(str(journal))), direction="maximize")
+    storage = JournalStorage(JournalFileBackend(str(journal.absolute())))
+    optuna.create_study(study_name=name, storage=storage, direction="maximize")
     t0 = time.time()
     deadline = t0 + duration_s
     jobs = [

@@ -17,6 +17,7 @@ import io
 import json
 import os
 import sqlite3
+import time
 from pathlib import Path
 from typing import Any
 from wsgiref.util import setup_testing_defaults
@@ -513,3 +514,44 @@ def test_a_writer_refuses_a_journal_whose_last_complete_line_is_damage(
     with pytest.raises(StorageError, match=f"damaged journal: line {len(journal_lines) + 1} is not a journal record"):
         open_storage(str(path), STUDY)
     assert path.read_bytes().endswith(b'"tri\n')  # left as it was
+
+
+def test_a_writer_clears_a_lock_a_killed_writer_left(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, recwarn: pytest.WarningsRecorder
+) -> None:
+    """A driver SIGKILLed while appending leaves the journal's lock. Optuna's lock is a symlink to the journal
+    whose grace period reads the age through the link: taken through a relative path (``runs/S/journal.log``
+    from the launch directory) the link points nowhere and the resumed driver waited on it for ever (seen in
+    CI). Writers now link the absolute path, so the grace period works, and a dangling lock an older writer
+    left is removed once it is as old as that grace period."""
+    import threading
+
+    from autotune.search import storage as storage_module
+    from autotune.search.storage import JournalRepairedWarning
+
+    monkeypatch.chdir(tmp_path)
+    journal = Path("runs") / STUDY / "journal.log"
+    storages = open_storage(str(journal), STUDY)
+    make_study(storages, STUDY)
+    lock = storages.storage._backend._lock  # type: ignore[attr-defined]  # noqa: SLF001 - a killed writer's
+    lock.acquire()  # ... and never releases
+    held = tmp_path / "runs" / STUDY / "journal.log.lock"
+    assert Path(os.readlink(held)).is_absolute() and held.exists()
+    held.unlink()
+
+    def opened_within(seconds: float) -> bool:
+        thread = threading.Thread(target=open_storage, args=(str(journal), STUDY), daemon=True)
+        thread.start()
+        thread.join(seconds)
+        return not thread.is_alive()
+
+    held.symlink_to(journal)  # what the old code left: relative, so it resolves beside itself, to nothing
+    assert not held.exists()
+    os.utime(held, (time.time() - 60, time.time() - 60), follow_symlinks=False)  # left a minute ago
+    assert opened_within(20) and not held.is_symlink()
+    assert any(isinstance(w.message, JournalRepairedWarning) and "journal.log.lock" in str(w.message) for w in recwarn)
+    monkeypatch.setattr(storage_module, "LOCK_GRACE_S", 2)
+    held.symlink_to(journal)  # just left: a writer waits out the grace period, then goes on
+    t0 = time.monotonic()
+    assert opened_within(20) and not held.is_symlink() and time.monotonic() - t0 >= 1.5
+    assert read_study(open_storage(str(journal), STUDY, read_only=True), STUDY).trials

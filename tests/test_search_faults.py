@@ -47,15 +47,17 @@ def _session(tmp_path: Path, name: str) -> dict[str, Any] | None:
     return info if info.get("workers") and all(info["workers"]) else None
 
 
-def _running_with_report(tmp_path: Path, name: str) -> optuna.trial.FrozenTrial | None:
-    journal = tmp_path / "runs" / name / "journal.log"
-    if not journal.exists():
-        return None
+def _trials(tmp_path: Path, name: str) -> list[optuna.trial.FrozenTrial]:
+    if not (tmp_path / "runs" / name / "journal.log").exists():
+        return []
     try:
-        trials = load(tmp_path, name).trials
+        return load(tmp_path, name).trials
     except Exception:  # the study is being created
-        return None
-    return next((t for t in trials if t.state == STATES.RUNNING and t.intermediate_values), None)
+        return []
+
+
+def _running_with_report(tmp_path: Path, name: str) -> optuna.trial.FrozenTrial | None:
+    return next((t for t in _trials(tmp_path, name) if t.state == STATES.RUNNING and t.intermediate_values), None)
 
 
 def test_worker_killed_mid_trial_fails_and_is_retried(tmp_path: Path) -> None:
@@ -97,11 +99,9 @@ def test_driver_killed_then_resumed(tmp_path: Path) -> None:
         wait_until(lambda: _session(tmp_path, "killdriver"), 180, "the workers to start")
 
         def one_done_one_running() -> optuna.trial.FrozenTrial | None:
-            running = _running_with_report(tmp_path, "killdriver")
-            if running is None:
-                return None
-            done = [t for t in load(tmp_path, "killdriver").trials if t.state.is_finished()]
-            return running if done else None
+            trials = _trials(tmp_path, "killdriver")  # one read: two could see the running trial finish between
+            running = next((t for t in trials if t.state == STATES.RUNNING and t.intermediate_values), None)
+            return running if any(t.state.is_finished() for t in trials) else None
 
         victim = wait_until(one_done_one_running, 180, "one finished trial and one running")
         os.kill(proc.pid, signal.SIGKILL)

@@ -289,10 +289,40 @@ def _settle_tail(path: Path, shown: str, lock: JournalFileSymlinkLock) -> None:
         lock.release()
 
 
+LOCK_GRACE_S = 30  # Optuna's JournalFileSymlinkLock default: a lock held this long unchanged is a dead writer's
+
+
+def _release_dangling_lock(lock: Path, shown: str) -> None:
+    """Remove a journal lock whose symlink points nowhere once it is ``LOCK_GRACE_S`` old.
+
+    Optuna's lock is a symlink to the journal, and its grace period reads the age through the link
+    (``os.stat``). A lock taken through a relative journal path points nowhere (the target is resolved
+    beside the link), so when a writer is killed holding it, every later writer waits on it for ever: a
+    resumed driver hung so. Writers here take it through the absolute path; this clears one that an
+    older writer left, after the same grace period, judged by the link's own time.
+    """
+    while lock.is_symlink() and not lock.exists():
+        try:
+            age = time.time() - lock.lstat().st_mtime
+        except FileNotFoundError:  # released meanwhile
+            return
+        if age < LOCK_GRACE_S:
+            time.sleep(min(LOCK_GRACE_S - age, 0.5))
+            continue
+        lock.unlink(missing_ok=True)
+        warnings.warn(JournalRepairedWarning(
+            f"storage '{shown}': removed the journal lock {lock.name} that a writer killed while holding it "
+            f"left {age:.0f} s ago"
+        ), stacklevel=4)  # fmt: skip
+        return
+
+
 def _open_journal(path: Path, shown: str) -> JournalStorage:
     try:
+        path = path.absolute()  # the lock's symlink names this path: absolute, it resolves (see above)
         path.parent.mkdir(parents=True, exist_ok=True)
-        lock = JournalFileSymlinkLock(str(path))
+        _release_dangling_lock(Path(str(path) + ".lock"), shown)
+        lock = JournalFileSymlinkLock(str(path), grace_period=LOCK_GRACE_S)
         backend = JournalFileBackend(str(path), lock_obj=lock)
         if not os.access(path, os.R_OK | os.W_OK) or not os.access(path.parent, os.W_OK | os.X_OK):
             raise PermissionError(f"not writable: {path}")  # the lock file is created beside the journal

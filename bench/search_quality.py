@@ -603,9 +603,11 @@ def chosen_trial(rows: Sequence[TrialRow], t_s: float) -> TrialRow | None:
     most = max(len(v) for v in races.values())
     root = max((k for k, v in races.items() if len(v) == most), key=lambda k: statistics.fmean(races[k]))
     by_number = {r.number: r for r in rows}
+    runs = [r for r in _complete_by(rows, t_s) if r.race_of == root]
+    raced = next((r.config for r in runs if r.config is not None), None)  # a kept rung's budget, if it entered so
     if root in by_number and by_number[root].config is not None:
-        return by_number[root]
-    return next(r for r in _complete_by(rows, t_s) if r.race_of == root)
+        return dataclasses.replace(by_number[root], config=raced or by_number[root].config)
+    return runs[0]
 
 
 def running_best(rows: Iterable[TrialRow]) -> list[tuple[float, float]]:

@@ -180,6 +180,10 @@ def test_chosen_trial_prefers_the_raced_configuration() -> None:
     assert sq.chosen_trial(rows, 35).number == 1  # one race run each: 73 beats 71
     assert sq.chosen_trial(rows, 45).number == 1  # two each: 73.25 beats 71.5
     assert sq.chosen_trial(rows, 60).number == 0  # trial 0 survived to a third round
+    assert sq.chosen_trial(rows, 60).config == {"c": 0}
+    rung = [row(7, 70.0, 70, race_of=0, config={"c": 0, "train_iterations": 10_000})]  # raced at a kept rung
+    chosen = sq.chosen_trial(rows + rung, 80)
+    assert chosen.number == 0 and chosen.config == {"c": 0, "train_iterations": 10_000}  # what the race measured
 
 
 def test_running_best_and_the_run_figures() -> None:

@@ -484,6 +484,64 @@ def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -
     assert not over and max(runs, key=lambda r: cost[r.race_of]).race_of == 0
 
 
+def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> None:
+    """An entrant is a trial's best scored net: a kept rung that beat its trial's top races at its own budget
+    (``rung_config``: what the rung trained), a pruned trial's kept rung may enter, a static policy may not;
+    ``race_summary`` names the budget and the rung's score, and a resumed driver races the same configs."""
+    from autotune.search.driver import race_entry
+    from autotune.search.records import race_summary
+
+    spec = _spec(race_configs=3, race_seeds=1).with_overrides(storage=str(tmp_path / "j.log"))
+    storages = open_storage(spec.study.storage, spec.study.name)
+    driver = Driver(spec, storages)
+    study = driver.open_study()
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-9, 0.0, 0.0, 0.0, 0.0, 0.0))
+    driver._fitted_on = 10**6  # noqa: SLF001 - keep the model above
+    dists = distributions(spec)
+
+    def add(layers: str, state: optuna.trial.TrialState, value: float | None, rungs: dict[int, float],
+            **attrs: Any) -> None:  # fmt: skip
+        cfg = TINY.replace(layers=layers)
+        study.add_trial(optuna.trial.create_trial(
+            params=space.encode(spec, cfg), distributions=dists, value=value, state=state,
+            user_attrs={keys.CONFIG: cfg.to_mapping(), keys.SEED: 1, keys.OFFICIAL_PROTOCOL: "v2-official",
+                        keys.RUNGS: [{keys.BUDGET: b, keys.SCORE: v} for b, v in rungs.items()],
+                        keys.ARTIFACT_RUNG_NETS: {str(b): f"id{b}" for b in rungs}, **attrs},
+        ))  # fmt: skip
+
+    done, pruned = optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED
+    add("fc:8:relu", done, 70.0, {400: 74.0, 1200: 70.0})  # 0: its 400-iteration net beat its top
+    add("fc:8:tanh", done, 72.0, {400: 71.0, 1200: 72.0})  # 1: its top is its best
+    add("fc:4:relu", pruned, None, {400: 73.0})  # 2: pruned after a good rung
+    add("fc:2:relu", pruned, None, {400: 80.0}, **{keys.STATIC_POLICY: True})  # 3: always one action
+    add("fc:2:tanh", done, 71.5, {400: 71.5, 1200: 71.5})  # 4: a tie goes to the value (no budget)
+    trials = study.trials
+    at_400 = rung_config(TrainConfig.from_mapping(trials[0].user_attrs[keys.CONFIG]), 400)
+    assert race_entry(trials[0]) == (74.0, 400, at_400.to_mapping()) and at_400.train_iterations == 400
+    assert race_entry(trials[1]) == (72.0, None, trials[1].user_attrs[keys.CONFIG])
+    assert race_entry(trials[3]) is None and race_entry(trials[4])[1] is None  # type: ignore[index]
+
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    field, _results, _launched = driver._race_state()  # noqa: SLF001
+    assert field == [0, 2, 1] and study.user_attrs[keys.RACE_BUDGETS] == {"0": 400, "2": 400}
+    driver.pool = FakePool()
+    assert driver._launch_race(0)  # noqa: SLF001
+    (run,) = [t for t in study.trials if keys.RACE_OF in t.user_attrs]
+    assert run.user_attrs[keys.RACE_OF] == 1  # the longest run first: trial 1 races at its own 1,200 iterations
+    assert run.user_attrs[keys.CONFIG] == trials[1].user_attrs[keys.CONFIG] == driver.pool.tasks[0].config
+
+    resumed = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    resumed.open_study()
+    assert resumed._raced_config(trials[0]) == at_400.to_mapping()  # noqa: SLF001
+    assert resumed._raced_config(trials[2]) == rung_config(  # noqa: SLF001
+        TrainConfig.from_mapping(trials[2].user_attrs[keys.CONFIG]), 400).to_mapping()  # fmt: skip
+    assert resumed._raced_config(trials[1]) == trials[1].user_attrs[keys.CONFIG]  # noqa: SLF001
+    summary = race_summary(storages, spec.study.name)
+    assert summary is not None
+    assert [(r["trial"], r["budget"], r["selecting_value"]) for r in summary["standings"]] == [
+        (0, 400, 74.0), (2, 400, 73.0), (1, None, 72.0)]  # fmt: skip
+
+
 def test_near_the_deadline_draws_must_fit_the_time_left(tmp_path: Path) -> None:
     """The gate's cap is the study's cost cap or the time left, whichever is less; once the time left is below
     the cheapest ladder the study has completed, no sampled trial starts (the deadline would stop it)."""

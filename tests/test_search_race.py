@@ -15,6 +15,7 @@ from pathlib import Path
 import optuna
 import pytest
 
+from autotune.search.driver import race_entry
 from tests.test_search_launch import finish, launch, load, tagged_processes
 
 SPEC = """
@@ -85,7 +86,7 @@ def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
     for t in race:  # the same fresh seed for every configuration of a round, never a selecting trial's seed
         by_seed.setdefault(t.user_attrs["race_seed"], set()).add(t.user_attrs["seed"])
         assert t.user_attrs["seed"] not in {o.user_attrs["seed"] for o in original}
-        assert t.user_attrs["config"] == trials[t.user_attrs["race_of"]].user_attrs["config"]
+        assert t.user_attrs["config"] == race_entry(trials[t.user_attrs["race_of"]])[2]  # type: ignore[index]
         assert t.state == optuna.trial.TrialState.COMPLETE, t.user_attrs.get("cause")
     assert all(len(seeds) == 1 for seeds in by_seed.values())
     expected, n = 0, len(field)  # successive halving: every survivor of a round runs, until one is left

@@ -120,12 +120,13 @@ def _best(args: argparse.Namespace) -> int:
         w = race["winner"]
         sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""
         print(
-            f"best configuration by mean over fresh seeds: trial {w['trial']}'s settings: {w['mean']:.2f}{sd} mph "
-            f"(n = {w['n']} fresh seeds; {w['selecting_value']:.2f} with the seed that selected it)"
+            f"best configuration by mean over fresh seeds: trial {w['trial']}'s settings{_at(w)}: "
+            f"{w['mean']:.2f}{sd} mph (n = {w['n']} fresh seeds; {w['selecting_value']:.2f} with the seed that "
+            "selected it)"
         )
         for row in race["standings"][1:]:
             if row["n"]:
-                print(f"  raced: trial {row['trial']}: {row['mean']:.2f} mph over {row['n']} fresh seed(s)")
+                print(f"  raced: trial {row['trial']}{_at(row)}: {row['mean']:.2f} mph over {row['n']} fresh seed(s)")
     elif race is not None:
         print("best configuration by mean over fresh seeds: the seed race has no finished run yet")
     for key, value in record["params"].items():
@@ -136,6 +137,11 @@ def _best(args: argparse.Namespace) -> int:
     for name, path in paths.items():
         print(f"wrote {path}" + (" (paste into the DeepTraffic page)" if name == "net.js" else ""))
     return 0
+
+
+def _at(standing: dict[str, Any]) -> str:
+    """' at B iterations' for an entrant raced at a kept rung's budget, else ''."""
+    return "" if standing.get("budget") is None else f" at {standing['budget']:,} iterations"
 
 
 def _dashboard(args: argparse.Namespace) -> int:

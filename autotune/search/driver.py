@@ -72,13 +72,14 @@ from autotune.search.objective import (
     process_alive,
     process_start,
 )
+from autotune.search.records import kept_rungs, net_rank
 from autotune.search.spec import SpecError, StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
 from sim.config import ConfigError
 
 __all__ = [
     "Driver", "Progress", "StudyCounts", "make_sampler", "make_pruner", "trial_seed", "WarmConfig", "clip_params",
-    "OFFICIAL_SCORE_METRIC",
+    "OFFICIAL_SCORE_METRIC", "race_entry",
 ]  # fmt: skip
 
 OFFICIAL_SCORE_METRIC = (
@@ -438,13 +439,16 @@ class Driver:
         field = self.study.user_attrs.get(keys.RACE_FIELD)
         if field is None:
             left = self._time_left()
-            candidates = [
-                (t.number, float(t.value), t.user_attrs[keys.CONFIG])
-                for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-                if t.value is not None and isinstance(t.user_attrs.get(keys.CONFIG), dict) and _original(t)
-                and self._race_cost(t.user_attrs[keys.CONFIG]) <= left
-            ]  # fmt: skip
+            candidates, budgets = [], {}
+            for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
+                entry = race_entry(t) if _original(t) else None
+                if entry is not None and self._race_cost(entry[2]) <= left:
+                    candidates.append((t.number, entry[0], entry[2]))
+                    budgets[t.number] = entry[1]
             field = [e.number for e in racing.entrants(candidates, self.spec.study.race_configs)]
+            raced_at = {str(n): budgets[n] for n in field if budgets[n] is not None}
+            if raced_at:  # stored before the field: a driver that resumes the race finds both
+                self.study.set_user_attr(keys.RACE_BUDGETS, raced_at)
             self.study.set_user_attr(keys.RACE_FIELD, field)
         results: dict[tuple[int, int], float | None] = {}
         launched: set[tuple[int, int]] = set()
@@ -486,6 +490,13 @@ class Driver:
         except (ConfigError, TypeError, ValueError):
             return math.inf
 
+    def _raced_config(self, source: FrozenTrial) -> dict[str, Any]:
+        """The configuration an entrant races with: its trial's, at the kept rung it entered with, if any."""
+        assert self.study is not None
+        config: dict[str, Any] = source.user_attrs[keys.CONFIG]
+        budget = (self.study.user_attrs.get(keys.RACE_BUDGETS) or {}).get(str(source.number))
+        return config if budget is None else rung_config(TrainConfig.from_mapping(config), int(budget)).to_mapping()
+
     def _launch_race(self, slot: int) -> bool:
         """Start the next race run on ``slot``; False when none can start now (round running, or race over)."""
         assert self.study is not None
@@ -498,11 +509,11 @@ class Driver:
             return False
         trials = self.study.get_trials(deepcopy=False)
         # longest first: a round ends with its cheap runs, not with one long run on one worker
-        run = max(runs, key=lambda r: self._race_cost(trials[r.race_of].user_attrs[keys.CONFIG]))
+        run = max(runs, key=lambda r: self._race_cost(self._raced_config(trials[r.race_of])))
         source = trials[run.race_of]
         seed = racing.race_seed(self.spec.study.seed, run.seed_index)
         self.study.enqueue_trial(dict(source.params), user_attrs={
-            keys.CONFIG: source.user_attrs[keys.CONFIG], keys.SEED: seed, keys.RACE_OF: run.race_of,
+            keys.CONFIG: self._raced_config(source), keys.SEED: seed, keys.RACE_OF: run.race_of,
             keys.RACE_SEED: run.seed_index,
         })  # fmt: skip
         return self._launch_next(slot)
@@ -874,6 +885,33 @@ def _observations(t: FrozenTrial) -> list[Observation]:
 
 class _Refused(Exception):
     """An enqueued configuration whose cheapest rung is over the cost cap (it is not trained)."""
+
+
+def race_entry(t: FrozenTrial) -> tuple[float, int | None, dict[str, Any]] | None:
+    """(score, budget, config) a trial enters the seed race with, or None: its best scored net (``net_rank``
+    over its value and its kept rungs, ``records.best_net``'s rule) and the configuration that trained it — at
+    a kept rung, ``rung_config`` at that budget, exactly what the rung trained.
+
+    A rung that beat its trial's top is raced at its own budget: the cold studies' top rungs at 270k–810k often
+    score below their 10k–90k nets, and a cheap entrant's runs cost a fraction (4 s at 10k against 130 s at
+    810k). A trial pruned as a static policy does not enter (its net never learned to steer).
+    """
+    config = t.user_attrs.get(keys.CONFIG)
+    if not isinstance(config, dict) or t.user_attrs.get(keys.STATIC_POLICY):
+        return None
+    found: list[tuple[float, int | None]] = [(score, budget) for budget, score in kept_rungs(t.user_attrs)]
+    if t.state == TrialState.COMPLETE and t.value is not None:
+        found.append((float(t.value), None))
+    found = [f for f in found if math.isfinite(f[0])]
+    if not found:
+        return None
+    score, budget = max(found, key=lambda f: net_rank(f[0], f[1], t.number))
+    if budget is None:
+        return score, None, config
+    try:
+        return score, budget, rung_config(TrainConfig.from_mapping(config), budget).to_mapping()
+    except (ConfigError, TypeError, ValueError):
+        return None
 
 
 def _original(t: FrozenTrial) -> bool:

@@ -134,6 +134,8 @@ OWN_NET_SCORES: Final = "own_net_scores"
 """Crowd import: {submission id: {score, protocol, mean, std, runs, …}} of the human nets."""
 RACE_FIELD: Final = "race_field"
 """Seed race: its entrants (trial numbers, best first), frozen when the race starts."""
+RACE_BUDGETS: Final = "race_budgets"
+"""Seed race: {trial number: budget} of the entrants raced at a kept rung's budget (absent: the trial's own)."""
 WARM_STARTED: Final = "warm_start:"
 """Prefix of the study attrs that record a warm start done: ``warm_start:crowd`` / ``warm_start:<study>`` → count."""
 

@@ -592,7 +592,8 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     """The seed race's standings (``autotune.search.racing``): each entrant's fresh-seed mean ± sd and n.
 
     None when the study has not raced. The winner is the entrant with the most fresh seeds, then the best
-    mean: the configuration to retrain, as opposed to the best single net (the leaderboard's number).
+    mean: the configuration to retrain, as opposed to the best single net (the leaderboard's number). An
+    entrant raced at a kept rung's budget (``budget``, else None) was selected by that rung's score.
     """
     from autotune.search import racing
 
@@ -605,9 +606,14 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     for t in trials:
         if keys.RACE_OF in t.user_attrs and t.state == "COMPLETE" and t.value is not None:
             results[(int(t.user_attrs[keys.RACE_OF]), int(t.user_attrs[keys.RACE_SEED]))] = float(t.value)
+    budgets = study.user_attrs.get(keys.RACE_BUDGETS) or {}
     rows = []
     for st in racing.standings([int(n) for n in field], results):
-        rows.append({"trial": st.number, "selecting_value": trials[st.number].value, "n": len(st.scores),
+        budget = budgets.get(str(st.number))
+        selecting = (
+            trials[st.number].value if budget is None else dict(kept_rungs(trials[st.number].user_attrs))[budget]
+        )
+        rows.append({"trial": st.number, "budget": budget, "selecting_value": selecting, "n": len(st.scores),
                      "mean": st.mean if st.scores else None, "sd": st.sd if len(st.scores) > 1 else None,
                      "scores": list(st.scores)})  # fmt: skip
     return {"entrants": [int(n) for n in field], "standings": rows, "winner": rows[0] if rows[0]["n"] else None}

@@ -23,7 +23,7 @@ from autotune.search.cost import FEATURES, CostModel, Observation, features, pla
 from autotune.search.driver import Driver, WarmConfig, clip_params, make_pruner, make_sampler
 from autotune.search.gate import MAX_DRAWS, CostGatedSampler, distributions
 from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
-from autotune.search.objective import COMPLETE, PRUNED, TrialTask, run_trial, static_policy
+from autotune.search.objective import COMPLETE, PRUNED, TrialOutcome, TrialTask, run_trial, static_policy
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
 from autotune.search.storage import open_storage
 from tests.conftest import ROOT, FakePool
@@ -555,9 +555,30 @@ def test_near_the_deadline_draws_must_fit_the_time_left(tmp_path: Path) -> None:
     driver._t0 = time.perf_counter() - timeout + 10  # noqa: SLF001 - 10 s left
     assert 9 < driver._draw_cap() <= 10  # noqa: SLF001
     assert driver._worth_starting()  # noqa: SLF001 - no complete trial yet: nothing known to be too long
-    driver._cheapest_ladder_s = 15.0  # noqa: SLF001 - the cheapest whole ladder took 15 s
+    driver._cheapest_ladder_s = 15.0  # noqa: SLF001 - the cheapest ladder up to min_top took 15 s
     assert not driver._worth_starting()  # noqa: SLF001
     assert driver._launch_next(0) is False and study.trials == []  # noqa: SLF001 - nothing asked, nothing made
+
+    # the race takes the time no draw could use, even before its own part of the time (the last 25 %: 15 s)
+    driver._t0 = time.perf_counter() - timeout + 30  # noqa: SLF001 - 30 s left: the race starts at 15 s left
+    driver._cheapest_ladder_s = 35.0  # noqa: SLF001
+    assert driver._race_window()  # noqa: SLF001 - no ladder fits in 30 s
+    driver._cheapest_ladder_s = 20.0  # noqa: SLF001
+    assert not driver._race_window()  # noqa: SLF001 - a 20 s ladder fits: the search goes on
+
+    # the cheapest ladder: the time through the gated rungs (min_top), from any sampled trial that got there
+    def outcome(state: str, *seconds: float) -> TrialOutcome:
+        rungs = [{keys.BUDGET: b, keys.SECONDS: x} for b, x in zip((400, 1200), seconds, strict=False)]
+        return TrialOutcome(0, state, None, None, {keys.RUNGS: rungs}, wall_seconds=sum(seconds) + 1)
+
+    at_min_top = dataclasses.replace(spec, ladder_min_top=400)
+    assert at_min_top.gated_rungs == 1 and spec.gated_rungs == 2
+    driver.spec = at_min_top
+    assert driver._gated_seconds(outcome(PRUNED, 3.0, 50.0)) == 3.0  # noqa: SLF001 - climbed on past min_top
+    assert driver._gated_seconds(outcome(PRUNED)) is None  # noqa: SLF001 - stopped before its first rung
+    driver.spec = spec
+    assert driver._gated_seconds(outcome(COMPLETE, 3.0, 50.0)) == 53.0  # noqa: SLF001
+    assert driver._gated_seconds(outcome(PRUNED, 3.0)) is None  # noqa: SLF001
 
     cap = [5.0]
     sampler = CostGatedSampler(optuna.samplers.RandomSampler(seed=0), spec, lambda _p: 4.0, lambda: cap[0], seed=0)

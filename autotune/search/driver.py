@@ -429,8 +429,8 @@ class Driver:
         if self._race_over or st.timeout_s is None or st.race_fraction <= 0:
             return False
         elapsed = time.perf_counter() - self._t0
-        if elapsed >= (1.0 - st.race_fraction) * st.timeout_s:
-            return True
+        if elapsed >= (1.0 - st.race_fraction) * st.timeout_s or not self._worth_starting():
+            return True  # its part of the time, or no draw could reach a value before the deadline
         self._refresh_counts()
         return st.n_trials is not None and self.counts.started >= st.n_trials
 
@@ -471,9 +471,25 @@ class Driver:
         return min(self.spec.study.cost_cap_s, self._time_left())
 
     def _worth_starting(self) -> bool:
-        """False once the time left is below the cheapest whole ladder this study has run: no draw would finish,
-        so the study ends when its running trials do instead of starting trials the deadline stops."""
+        """False once the time left is below the cheapest ladder up to the gated rungs (``min_top``) this study has
+        run: no draw would reach a value, so the time left goes to the seed race (``_race_window``), or the study
+        ends when its running trials do instead of starting trials the deadline stops."""
         return self._time_left() >= self._cheapest_ladder_s
+
+    def _gated_seconds(self, outcome: TrialOutcome) -> float | None:
+        """Seconds a sampled trial took through the rungs the gate prices (its whole run without a ladder); None
+        when it stopped before them.
+
+        Not its whole ladder: a cheap configuration climbs on to 810k, and a study whose only complete trial did
+        so (200 s) once ended 195 s early, before its race, though 90k draws cost 20 s."""
+        if not self.spec.ladder:
+            return outcome.wall_seconds if outcome.state == COMPLETE and outcome.wall_seconds > 0 else None
+        rungs = outcome.attrs.get(keys.RUNGS) or []
+        need = self.spec.gated_rungs
+        if len(rungs) < need:
+            return None
+        seconds = sum(float(r.get(keys.SECONDS) or 0.0) for r in rungs[:need])
+        return seconds if seconds > 0 else None
 
     def _time_left(self) -> float:
         """Seconds until the study's deadline (inf without ``timeout_s``)."""
@@ -782,9 +798,10 @@ class Driver:
             self.pool.answer(event.slot, prune)
             return
         del self._running[event.slot]
-        if event.kind == "done" and run.sampled and event.outcome.state == COMPLETE and event.outcome.wall_seconds > 0:
-            wall = event.outcome.wall_seconds
-            self._cheapest_ladder_s = wall if self._cheapest_ladder_s == 0.0 else min(self._cheapest_ladder_s, wall)
+        if event.kind == "done" and run.sampled:
+            wall = self._gated_seconds(event.outcome)
+            if wall is not None:
+                self._cheapest_ladder_s = wall if self._cheapest_ladder_s == 0.0 else min(self._cheapest_ladder_s, wall)
         if event.kind == "done" and not self._out_of_time() and not self._race_window():
             # the worker starts its next trial before this one's storage writes (in the race window the loop
             # starts race runs instead, once this trial's result is stored: it may be an entrant)

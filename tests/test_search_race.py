@@ -98,6 +98,8 @@ def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
         if n == 1:
             break
     assert sorted(by_seed)[0] == 0 and len(race) == expected
+    retries = sum(1 for t in trials if "retry_of" in t.user_attrs and "race_of" not in t.user_attrs)
+    assert f"({retries} retries, {len(race)} race runs)" in out  # race runs are not called retries
     assert tagged_processes("race-" + tmp_path.name) == []
 
     best = subprocess.run(

@@ -111,7 +111,9 @@ class StudyCounts:
     failed: int = 0
     running: int = 0
     retries: int = 0
-    """Retries and race runs (``retry_of`` / ``race_of``, any state): trials that use no budget."""
+    """Retries (``retry_of``, any state): trials that use no budget."""
+    race_runs: int = 0
+    """Seed-race runs (``race_of``, any state): trials that use no budget either."""
     best_value: float | None = None
     best_number: int | None = None
     elapsed_s: float = 0.0
@@ -119,7 +121,7 @@ class StudyCounts:
     @property
     def finished(self) -> int:
         """Original trials whose chain has ended: budget units used up."""
-        return self.complete + self.pruned + self.failed - self.retries
+        return self.complete + self.pruned + self.failed - self.retries - self.race_runs
 
 
 Progress = Callable[[StudyCounts], None]
@@ -596,7 +598,8 @@ class Driver:
         c = self.counts
         trials = [t for t in self.study.get_trials(deepcopy=False) if keys.COPIED_FROM not in t.user_attrs]
         c.started = sum(1 for t in trials if _original(t) and t.state != TrialState.WAITING)
-        c.retries = sum(1 for t in trials if keys.RETRY_OF in t.user_attrs or keys.RACE_OF in t.user_attrs)
+        c.retries = sum(1 for t in trials if keys.RETRY_OF in t.user_attrs and keys.RACE_OF not in t.user_attrs)
+        c.race_runs = sum(1 for t in trials if keys.RACE_OF in t.user_attrs)
         c.complete = sum(1 for t in trials if t.state == TrialState.COMPLETE)
         c.pruned = sum(1 for t in trials if t.state == TrialState.PRUNED)
         c.failed = sum(1 for t in trials if t.state == TrialState.FAIL)

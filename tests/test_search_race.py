@@ -135,3 +135,12 @@ def test_the_race_starts_in_the_last_part_of_the_time(tmp_path: Path) -> None:
     # once racing, no new draw starts until the race is over (then the search may go on)
     done = max(t.datetime_complete for t in race if t.datetime_complete is not None)
     assert all(t.datetime_start is not None and t.datetime_start >= done for t in later), [t.number for t in later]
+
+
+def test_race_runs_use_no_budget_and_are_not_called_retries() -> None:
+    from autotune.search.driver import StudyCounts
+
+    raced = StudyCounts(budget=5, complete=9, pruned=2, retries=1, race_runs=6)
+    assert raced.finished == 4
+    assert raced.reruns == "1 retries, 6 race runs"
+    assert StudyCounts(budget=5, complete=3).reruns == "0 retries"

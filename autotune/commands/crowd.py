@@ -125,8 +125,7 @@ def _replay(args: argparse.Namespace) -> int:
     if ran:
         print(
             f"ran {ran} trial(s) in {counts.elapsed_s:.0f} s; study: {counts.complete} complete, {counts.pruned} "
-            f"pruned, {counts.failed} failed ({counts.retries} retries"
-            + (f", {counts.race_runs} race runs)" if counts.race_runs else ")")
+            f"pruned, {counts.failed} failed ({counts.reruns})"
         )
     else:
         print("nothing to run: every trial of the study has run already")

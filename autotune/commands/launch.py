@@ -105,15 +105,10 @@ def _check_address(address: str) -> None:
         raise ConfigError(f"--address {address!r}: expected HOST:PORT of a Ray head (or 'auto')")
 
 
-def _race_runs(counts: Any) -> str:
-    """', N race runs' when the study raced (the seed race's runs are not retries), else ''."""
-    return f", {counts.race_runs} race runs" if counts.race_runs else ""
-
-
 def _print_summary(name: str, storages: Any, counts: Any, driver: Any) -> None:
     print(
         f"study {name}: {counts.complete} complete, {counts.pruned} pruned, {counts.failed} failed "
-        f"({counts.retries} retries{_race_runs(counts)}) in {counts.elapsed_s:.0f} s",
+        f"({counts.reruns}) in {counts.elapsed_s:.0f} s",
     )
     if driver.recovered:
         print(f"resumed: trials {', '.join(map(str, driver.recovered))} of a stopped driver were failed and retried")

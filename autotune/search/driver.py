@@ -123,6 +123,11 @@ class StudyCounts:
         """Original trials whose chain has ended: budget units used up."""
         return self.complete + self.pruned + self.failed - self.retries - self.race_runs
 
+    @property
+    def reruns(self) -> str:
+        """'N retries' and, when the study raced, ', M race runs' (neither uses budget): summary lines."""
+        return f"{self.retries} retries" + (f", {self.race_runs} race runs" if self.race_runs else "")
+
 
 Progress = Callable[[StudyCounts], None]
 """Called after every change of the counts (and about once a second while trials run)."""

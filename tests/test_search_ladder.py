@@ -544,7 +544,8 @@ def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> No
 
 def test_near_the_deadline_draws_must_fit_the_time_left(tmp_path: Path) -> None:
     """The gate's cap is the study's cost cap or the time left, whichever is less; once the time left is below
-    the cheapest ladder the study has completed, no sampled trial starts (the deadline would stop it)."""
+    the fewest seconds a sampled trial took through the gated rungs, no sampled trial starts (the deadline would
+    stop it before it had a value) and the seed race takes the time left."""
     spec = _spec(max_trial_cost_s=20).with_overrides(storage=str(tmp_path / "j.log"))
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
@@ -555,15 +556,15 @@ def test_near_the_deadline_draws_must_fit_the_time_left(tmp_path: Path) -> None:
     driver._t0 = time.perf_counter() - timeout + 10  # noqa: SLF001 - 10 s left
     assert 9 < driver._draw_cap() <= 10  # noqa: SLF001
     assert driver._worth_starting()  # noqa: SLF001 - no complete trial yet: nothing known to be too long
-    driver._cheapest_ladder_s = 15.0  # noqa: SLF001 - the cheapest ladder up to min_top took 15 s
+    driver._cheapest_gated_s = 15.0  # noqa: SLF001 - the cheapest ladder up to min_top took 15 s
     assert not driver._worth_starting()  # noqa: SLF001
     assert driver._launch_next(0) is False and study.trials == []  # noqa: SLF001 - nothing asked, nothing made
 
     # the race takes the time no draw could use, even before its own part of the time (the last 25 %: 15 s)
     driver._t0 = time.perf_counter() - timeout + 30  # noqa: SLF001 - 30 s left: the race starts at 15 s left
-    driver._cheapest_ladder_s = 35.0  # noqa: SLF001
+    driver._cheapest_gated_s = 35.0  # noqa: SLF001
     assert driver._race_window()  # noqa: SLF001 - no ladder fits in 30 s
-    driver._cheapest_ladder_s = 20.0  # noqa: SLF001
+    driver._cheapest_gated_s = 20.0  # noqa: SLF001
     assert not driver._race_window()  # noqa: SLF001 - a 20 s ladder fits: the search goes on
 
     # the cheapest ladder: the time through the gated rungs (min_top), from any sampled trial that got there

@@ -15,7 +15,7 @@ from pathlib import Path
 import optuna
 import pytest
 
-from autotune.search.driver import race_entry
+from autotune.search.driver import StudyCounts, race_entry
 from tests.test_search_launch import finish, launch, load, tagged_processes
 
 SPEC = """
@@ -138,8 +138,6 @@ def test_the_race_starts_in_the_last_part_of_the_time(tmp_path: Path) -> None:
 
 
 def test_race_runs_use_no_budget_and_are_not_called_retries() -> None:
-    from autotune.search.driver import StudyCounts
-
     raced = StudyCounts(budget=5, complete=9, pruned=2, retries=1, race_runs=6)
     assert raced.finished == 4
     assert raced.reruns == "1 retries, 6 race runs"

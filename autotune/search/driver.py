@@ -259,8 +259,8 @@ class Driver:
         self._fitted_on = -1
         self._observed: dict[int, list[Observation]] = {}
         self._race_over = False
-        self._cheapest_ladder_s = 0.0
-        """Wall seconds of the cheapest complete sampled trial so far (0 until one completes)."""
+        self._cheapest_gated_s = 0.0
+        """Fewest wall seconds a sampled trial took through the gated rungs (``_gated_seconds``; 0 before any)."""
         self._wall0 = 0.0
         self.warm_notes: list[str] = []
         """What the warm start did (crowd settings enqueued, clipped or skipped; trials copied)."""
@@ -481,7 +481,7 @@ class Driver:
         """False once the time left is below the cheapest ladder up to the gated rungs (``min_top``) this study has
         run: no draw would reach a value, so the time left goes to the seed race (``_race_window``), or the study
         ends when its running trials do instead of starting trials the deadline stops."""
-        return self._time_left() >= self._cheapest_ladder_s
+        return self._time_left() >= self._cheapest_gated_s
 
     def _gated_seconds(self, outcome: TrialOutcome) -> float | None:
         """Seconds a sampled trial took through the rungs the gate prices (its whole run without a ladder); None
@@ -809,7 +809,7 @@ class Driver:
         if event.kind == "done" and run.sampled:
             wall = self._gated_seconds(event.outcome)
             if wall is not None:
-                self._cheapest_ladder_s = wall if self._cheapest_ladder_s == 0.0 else min(self._cheapest_ladder_s, wall)
+                self._cheapest_gated_s = wall if self._cheapest_gated_s == 0.0 else min(self._cheapest_gated_s, wall)
         if event.kind == "done" and not self._out_of_time() and not self._race_window():
             # the worker starts its next trial before this one's storage writes (in the race window the loop
             # starts race runs instead, once this trial's result is stored: it may be an entrant)

@@ -7,6 +7,7 @@ resuming with a changed space is refused.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -164,6 +165,77 @@ def test_a_static_policy_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
     data["ladder"]["prune_static"] = False
     off_spec = parse_spec(data)
     assert not off_spec.ladder_prune_static and off_spec.to_dict()["ladder"]["prune_static"] is False
+
+
+def test_weight_change_is_how_far_training_moved_the_net() -> None:
+    """``TrainResult.weight_change`` is ‖θ − θ₀‖ / ‖θ₀‖ against the initialisation from the run's seed; a rate of
+    0 leaves it at 0."""
+    import numpy as np
+
+    from autotune.learner.brain import DeepQLearner
+
+    config = rung_config(TINY, 400)
+    result = train(config, 3, quick_eval=False)
+    init = DeepQLearner(config, np.random.SeedSequence(3).spawn(4)[0]).module  # train's brain seed
+    flat = [
+        np.concatenate([p.detach().double().numpy().ravel() for p in m.parameters()]) for m in (init, result.module)
+    ]
+    assert result.weight_change == pytest.approx(np.linalg.norm(flat[1] - flat[0]) / np.linalg.norm(flat[0]))
+    assert 0.1 < result.weight_change < 10 and result.summary()["weight_change"] == result.weight_change
+    assert train(config.replace(learning_rate=0.0), 3, quick_eval=False).weight_change == 0.0
+
+
+def test_a_net_that_does_not_learn_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
+    """A rung whose training left the weights within ``min_weight_change`` of their initialisation prunes the
+    trial with its cause (scored and kept, not reported); a net that learns climbs on; the driver passes the
+    spec's threshold (never to race runs), tells samplers the constraint, and keeps the trial out of the race."""
+    inert = TINY.replace(method="adagrad", learning_rate=1e-8)  # moves ~3e-7 of its norm in 400 decisions
+    reports: list[int] = []
+
+    def climb(config: TrainConfig, threshold: float) -> Any:
+        task = TrialTask(number=0, config=config.to_mapping(), seed=3, rungs=(400, 1200), min_weight_change=threshold)
+        return run_trial(task, lambda step, *a: bool(reports.append(step)))  # type: ignore[func-returns-value]
+
+    outcome = climb(inert, 0.01)
+    assert outcome.state == PRUNED and outcome.attrs[keys.DOES_NOT_LEARN] is True and reports == []
+    rung = outcome.attrs["rungs"][0]
+    assert rung[keys.WEIGHT_CHANGE] < 1e-6 and set(outcome.rung_nets) == {400}
+    assert outcome.cause == (f"does not learn at rung 0 (400 iterations, {rung[keys.SCORE]:.2f} mph): training "
+                             f"moved its weights 0.000% from their initialisation, under [ladder] "
+                             f"min_weight_change = 1.00%")  # fmt: skip
+    assert climb(inert, 0.0).state == COMPLETE and reports == [1, 3]  # 0 turns it off
+    learns = climb(TINY.replace(lanes_side=1, patches_ahead=4), 0.01)
+    assert learns.state == COMPLETE and keys.DOES_NOT_LEARN not in learns.attrs
+    assert all(r[keys.WEIGHT_CHANGE] > 0.1 for r in learns.attrs["rungs"])
+
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    assert spec.ladder_min_weight_change == 0.01 and "min_weight_change" not in spec.to_dict()["ladder"]
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver.pool = FakePool()
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    assert driver._launch_next(0) and driver.pool.tasks[0].min_weight_change == 0.01  # noqa: SLF001
+    study.enqueue_trial({}, user_attrs={keys.RACE_OF: 0, keys.CONFIG: TINY.to_mapping(), keys.SEED: 5})
+    assert driver._launch_next(1) and driver.pool.tasks[1].min_weight_change == 0.0  # noqa: SLF001 - a race run
+    trial = study.ask()
+    driver._finish(trial, outcome)  # noqa: SLF001
+    told = study.trials[trial.number]
+    assert told.constraints == {keys.POLICY_LEARNS: 1.0} and told.state == optuna.trial.TrialState.PRUNED
+    from autotune.search.driver import race_entry
+
+    assert race_entry(told) is None  # its kept 400 rung scored, but the race measures configurations that learn
+    kept = copy.deepcopy(told)
+    kept.user_attrs = {k: v for k, v in told.user_attrs.items() if k != keys.DOES_NOT_LEARN}
+    assert race_entry(kept) is not None
+
+    data = _spec().to_dict()
+    for bad in ("1%", -0.1, 1.5, True):
+        data["ladder"]["min_weight_change"] = bad
+        with pytest.raises(SpecError, match=r"\[ladder\] min_weight_change \(a fraction of the weights' norm"):
+            parse_spec(data, source="bad.toml")
+    data["ladder"]["min_weight_change"] = 0
+    off = parse_spec(data)
+    assert off.ladder_min_weight_change == 0.0 and parse_spec(off.to_dict()) == off
 
 
 def test_the_study_deadline_stops_a_trial_without_a_truncated_score() -> None:

@@ -126,6 +126,10 @@ class TrainResult:
     diverged_reason: str | None = None
     stopped: bool = False
     stop_reason: str | None = None
+    weight_change: float = 0.0
+    """‖θ_end − θ_0‖ / ‖θ_0‖ over every weight and bias: how far training moved the net from its initialisation
+    (0 when no update was made). Nets that learn to drive move by percents in 10k decisions; a learning rate
+    too small to matter leaves them within a fraction of a per mille, whatever the score of the initial net."""
 
     @property
     def iterations_per_second(self) -> float:
@@ -162,6 +166,7 @@ class TrainResult:
             "diverged_reason": self.diverged_reason,
             "stopped": self.stopped,
             "stop_reason": self.stop_reason,
+            "weight_change": self.weight_change,
         }
 
 
@@ -289,6 +294,7 @@ def _train(config: TrainConfig, seeds: _Seeds, reporting: _Reporting) -> TrainRe
     c0 = time.process_time()
     seed, original, progress = seeds.seed, seeds.original, reporting.progress
     brain = DeepQLearner(config, seeds.brain, stream=original)
+    initial = _flat_params(brain.module)
     eval_rng = np.random.default_rng(seeds.eval)
     runs, frames_per_run = config.schedule
     curve: list[CurvePoint] = []
@@ -298,7 +304,7 @@ def _train(config: TrainConfig, seeds: _Seeds, reporting: _Reporting) -> TrainRe
     agent_decisions = 0
     sim: Simulator | None = None
     if runs == 0:
-        return _result(config, seed, brain, curve, None, 0, (t0, c0), (eval_seconds, eval_cpu), result)
+        return _result(config, seed, brain, initial, curve, None, 0, (t0, c0), (eval_seconds, eval_cpu), result)
 
     sim = Simulator(config.engine_config, 1, frames_per_run, runs)
     start_state = original.state if original is not None else seeds.sim_state
@@ -354,7 +360,8 @@ def _train(config: TrainConfig, seeds: _Seeds, reporting: _Reporting) -> TrainRe
         result["diverged_reason"] = str(exc)
     if progress is not None:
         progress(sim.frames_simulated, total_frames)
-    return _result(config, seed, brain, curve, sim, agent_decisions, (t0, c0), (eval_seconds, eval_cpu), result)
+    times = (t0, c0), (eval_seconds, eval_cpu)
+    return _result(config, seed, brain, initial, curve, sim, agent_decisions, *times, result)
 
 
 def _report(
@@ -399,10 +406,23 @@ def _report(
     return None
 
 
+def _flat_params(module: Any) -> np.ndarray:
+    """Every parameter of ``module`` as one float64 vector (a copy)."""
+    return np.concatenate([p.detach().to("cpu", torch.float64).numpy().ravel() for p in module.parameters()])
+
+
+def _relative_change(initial: np.ndarray, module: Any) -> float:
+    """‖θ − θ_0‖ / ‖θ_0‖ of ``module``'s parameters against ``initial`` (``_flat_params`` before training)."""
+    norm = float(np.linalg.norm(initial))
+    moved = float(np.linalg.norm(_flat_params(module) - initial))
+    return moved / norm if norm > 0 else (math.inf if moved > 0 else 0.0)
+
+
 def _result(
     config: TrainConfig,
     seed: int,
     brain: DeepQLearner,
+    initial: np.ndarray,
     curve: list[CurvePoint],
     sim: Simulator | None,
     agent_decisions: int,
@@ -437,5 +457,6 @@ def _result(
         final_epsilon=brain.epsilon,
         experience_size_final=brain.n_exp,
         final_gauss_cache=int(brain._stream.cache[0]) if brain._stream is not None else None,
+        weight_change=_relative_change(initial, brain.module),
         **status,
     )

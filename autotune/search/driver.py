@@ -783,6 +783,7 @@ class Driver:
             final_protocol="" if full is not None and not race else e.final_protocol,  # '': its ruleset's official
             timeout_s=st.trial_timeout_s, rungs=rungs,
             prune_static=self.spec.ladder_prune_static and not race,  # a race run's score counts, whatever it is
+            min_weight_change=0.0 if race else self.spec.ladder_min_weight_change,
             deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,
         )  # fmt: skip
         trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
@@ -825,7 +826,8 @@ class Driver:
         assert self.study is not None
         for key, value in outcome.attrs.items():
             trial.set_user_attr(key, _jsonable(value))
-        if outcome.attrs.get(keys.STATIC_POLICY):  # a told constraint: TPE ranks infeasible trials last
+        if outcome.attrs.get(keys.STATIC_POLICY) or outcome.attrs.get(keys.DOES_NOT_LEARN):
+            # a told constraint: TPE ranks infeasible trials last
             trial.set_constraint(keys.POLICY_LEARNS, 1.0)
         if outcome.rung_nets:  # every finished rung's net, pruned trials included
             ids = {}
@@ -919,10 +921,11 @@ def race_entry(t: FrozenTrial) -> tuple[float, int | None, dict[str, Any]] | Non
 
     A rung that beat its trial's top is raced at its own budget: the cold studies' top rungs at 270k–810k often
     score below their 10k–90k nets, and a cheap entrant's runs cost a fraction (4 s at 10k against 130 s at
-    810k). A trial pruned as a static policy does not enter (its net never learned to steer).
+    810k). A trial pruned as a static policy or as one that does not learn does not enter (its net never learned
+    to steer).
     """
     config = t.user_attrs.get(keys.CONFIG)
-    if not isinstance(config, dict) or t.user_attrs.get(keys.STATIC_POLICY):
+    if not isinstance(config, dict) or t.user_attrs.get(keys.STATIC_POLICY) or t.user_attrs.get(keys.DOES_NOT_LEARN):
         return None
     found: list[tuple[float, int | None]] = [(score, budget) for budget, score in kept_rungs(t.user_attrs)]
     if t.state == TrialState.COMPLETE and t.value is not None:

@@ -10,7 +10,8 @@ How a trial ends (``TrialOutcome.state``):
 * ``"complete"`` — trained to the end and scored with the ruleset's official protocol (exact; the
   value is the site's median for v2-official, the same statistic for v1-original);
 * ``"pruned"`` — the pruner said so at a report, the net diverged (non-finite Q or loss), a rung's
-  policy is static (``prune_static``: one greedy action, or a score unchanged from the rung before), or a
+  policy is static (``prune_static``: one greedy action, or a score unchanged from the rung before), a rung's
+  training left the net where it started (``min_weight_change``: it does not learn), or a
   wall-time limit passed — the trial's own (``timeout_s``) or the study's (``deadline``), checked
   about every 1 % of training and between chunks of the official evaluation; ``cause`` says which.
   A trial stopped by a limit keeps the rungs it finished and never reports a truncated score;
@@ -72,6 +73,10 @@ class TrialTask:
     prune_static: bool = False
     """Prune a ladder trial at a rung whose policy is static (``static_policy``): one greedy action, or the same
     official score as the rung before."""
+    min_weight_change: float = 0.0
+    """Prune a ladder trial at a rung whose training moved the net's weights less than this fraction of their norm
+    from the initialisation (``TrainResult.weight_change``): scored and kept, but not reported to the pruner (its
+    score measures the initial weights' luck); 0 = never."""
 
 
 @dataclasses.dataclass
@@ -253,13 +258,20 @@ def _run_ladder(
             keys.BUDGET: int(budget), keys.SCORE: score, keys.SECONDS: time.perf_counter() - t_rung,
             keys.TRAIN_SECONDS: result.train_seconds, keys.EVAL_SECONDS: time.perf_counter() - te,
             keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std, keys.FRAMES: int(result.frames),
-            keys.GREEDY_CHOICES: [int(n) for n in greedy],
+            keys.GREEDY_CHOICES: [int(n) for n in greedy], keys.WEIGHT_CHANGE: result.weight_change,
         })  # fmt: skip
         attrs[keys.CURVE] = [
             {keys.STEP: k, keys.FRAMES: int(p.frames), keys.QUICK_SCORE: None, keys.MEAN_REWARD: _finite(p.mean_reward),
              keys.LOSS: _finite(p.loss)} for k, p in enumerate(result.curve)
         ]  # fmt: skip
         value = score
+        if result.weight_change < task.min_weight_change:  # its score is its initial weights' luck, not learning
+            attrs[keys.DOES_NOT_LEARN] = True
+            return finish(PRUNED, None, (
+                f"does not learn at rung {r} ({budget:,} iterations, {score:.2f} mph): training moved its weights "
+                f"{result.weight_change:.3%} from their initialisation, under [ladder] min_weight_change = "
+                f"{task.min_weight_change:.2%}"
+            ))  # fmt: skip
         step = budget // task.rungs[0]
         if report(step, attrs[keys.FRAMES_SIMULATED], score) and r < len(task.rungs) - 1:
             return finish(PRUNED, None, f"pruned after rung {r} ({budget:,} iterations, {score:.2f} mph) by the pruner")

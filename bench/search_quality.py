@@ -33,7 +33,8 @@ best v2 crowd setting our sgd learner replays) is retrained with the same seeds.
 Per run, from the trial records: the cost model's median |actual − predicted| / actual over the
 COMPLETE trials that stored ``predicted_cost_s`` before training; the share of worker time (workers ×
 the arm's wall) spent in trials stopped by a limit (cause ``timeout…``); the worst trial wall time /
-``trial_timeout_s``; the share of sampler draws refused (``refused_draws``), where stored.
+``trial_timeout_s``; the share of sampler draws refused (``refused_draws``), where stored; the pruned
+trials by cause (the pruner, not learning, static, diverged, a limit).
 
 ``--calibration N`` (a spec with a [ladder]): N configurations drawn from the service's own space
 (``space.sample`` with a seeded RandomSampler, ``space.to_config`` per rung, as the driver builds
@@ -86,6 +87,10 @@ FALLBACK_ITERATIONS = {"low": 5_000, "high": 1_000_000, "log": True}
 FRACTION = "_fraction"  # [space] names <setting>_fraction: that setting as a fraction of train_iterations
 FINISHED = ("COMPLETE", "PRUNED", "FAIL")
 LIMIT_CAUSE = "timeout"  # causes of trials stopped by a wall-time limit start with this
+PRUNE_CAUSES = (  # (how the objective's cause starts, its label in the figures), first match wins
+    ("pruned after rung", "by the pruner"), ("does not learn", "not learning"), ("static policy", "static"),
+    ("diverged", "diverged"), (LIMIT_CAUSE, "trial limit"), ("deadline", "deadline"),
+)  # fmt: skip
 DEADLINE_CAUSE = "deadline: the arm's wall budget ended"
 
 
@@ -652,6 +657,17 @@ def refused_share(rows: Iterable[TrialRow]) -> float | None:
     return sum(refused) / (sum(refused) + len(drawn))
 
 
+def pruned_by(rows: Iterable[TrialRow]) -> dict[str, int]:
+    """PRUNED trials counted by cause (``PRUNE_CAUSES``' labels, the rest as "other"), most frequent first."""
+    counts: dict[str, int] = {}
+    for r in rows:
+        if r.state == "PRUNED":
+            cause = r.cause or ""
+            label = next((name for start, name in PRUNE_CAUSES if cause.startswith(start)), "other")
+            counts[label] = counts.get(label, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
 def worst_overrun(rows: Iterable[TrialRow], limit_s: float) -> float | None:
     """The largest trial wall time / the per-trial limit (1.1 = 10 % past it)."""
     walls = [r.wall_s for r in rows if r.wall_s is not None]
@@ -689,6 +705,11 @@ def mean_sd(scores: Sequence[float]) -> tuple[float | None, float | None]:
     return statistics.fmean(scores), (statistics.stdev(scores) if len(scores) > 1 else None)
 
 
+def _causes(counts: Mapping[str, int] | None) -> str:
+    """': 40 by the pruner, 9 not learning, …' for a run's summary line ('' when none were pruned)."""
+    return ": " + ", ".join(f"{n} {label}" for label, n in counts.items()) if counts else ""
+
+
 def run_figures(rows: Sequence[TrialRow], wall_s: float, workers: int, limit_s: float) -> dict[str, Any]:
     """The per-run figures of the module doc (counts, cost-model error, limit/refused shares, overrun)."""
     err, n_err = cost_model_error(rows)
@@ -696,6 +717,7 @@ def run_figures(rows: Sequence[TrialRow], wall_s: float, workers: int, limit_s: 
     return {
         "trials": len(rows),
         "states": states,
+        "pruned_by": pruned_by(rows),
         "cost_model_median_error": err,
         "cost_model_n": n_err,
         "limit_share": limit_share(rows, workers * wall_s),
@@ -1101,7 +1123,8 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
             st = run["states"]
             lines.append(
                 f"{arm} s{run['study_seed']}: {run['trials']} trials ({st['COMPLETE']} complete, "
-                f"{st['PRUNED']} pruned, {st['FAIL']} failed), cost model error {_pct(run['cost_model_median_error'])} "
+                f"{st['PRUNED']} pruned{_causes(run.get('pruned_by'))}, {st['FAIL']} failed), cost model error "
+                f"{_pct(run['cost_model_median_error'])} "
                 f"(n={run['cost_model_n']}), limit-stopped {_pct(run['limit_share'])} of worker time, refused draws "
                 f"{_pct(run['refused_share'])}, worst trial {_f(run['worst_overrun'])}× its limit, reseeding "
                 f"{_f(run.get('reseed_wall_s'), '.0f')} s, load {run['load_start']} → {run['load_end']}"

@@ -203,6 +203,13 @@ def test_running_best_and_the_run_figures() -> None:
     assert sq.worst_overrun(rows, 50.0) == pytest.approx(2.0)
     figures = sq.run_figures(rows, 100.0, 2, 50.0)
     assert figures["states"] == {"COMPLETE": 4, "PRUNED": 1, "FAIL": 0, "RUNNING": 0}
+    assert figures["pruned_by"] == {"trial limit": 1}
+    causes = ["does not learn at rung 0 (…)", "static policy at rung 1 (…)", "does not learn at rung 0 (…)",
+              "pruned after rung 0 (…) by the pruner", "diverged at rung 2, …", "deadline: …", "lost"]  # fmt: skip
+    pruned = [row(k, None, 10.0 * k, cause=c) for k, c in enumerate(causes)]
+    assert sq.pruned_by(pruned + rows[:2]) == {
+        "not learning": 2, "by the pruner": 1, "deadline": 1, "diverged": 1, "other": 1, "static": 1,
+    }  # fmt: skip
 
 
 def test_arm_checkpoints_are_medians_over_runs() -> None:

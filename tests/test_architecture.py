@@ -320,7 +320,7 @@ def _distinctive(value: str) -> bool:
         "source", "seed", "config", "settings", "curve", "cause", "worker", "step", "frames", "spec", "skipped",
         "diverged", "quick_score", "input_size", "num_states", "param_count", "train_seconds", "official_protocol",
         "engine_version", "reported_score_mph", "autotune", "crowd", "crowd-replay", "ladder", "rungs", "warm_start",
-        "score", "seconds", "budget", "loss", "mean_reward",
+        "score", "seconds", "budget", "loss", "mean_reward", "weight_change",
     }  # fmt: skip
     return value not in generic
 

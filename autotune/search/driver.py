@@ -49,7 +49,7 @@ import socket
 import tempfile
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -826,8 +826,7 @@ class Driver:
         assert self.study is not None
         for key, value in outcome.attrs.items():
             trial.set_user_attr(key, _jsonable(value))
-        if outcome.attrs.get(keys.STATIC_POLICY) or outcome.attrs.get(keys.DOES_NOT_LEARN):
-            # a told constraint: TPE ranks infeasible trials last
+        if _never_learned(outcome.attrs):  # a told constraint: TPE ranks infeasible trials last
             trial.set_constraint(keys.POLICY_LEARNS, 1.0)
         if outcome.rung_nets:  # every finished rung's net, pruned trials included
             ids = {}
@@ -914,6 +913,11 @@ class _Refused(Exception):
     """An enqueued configuration whose cheapest rung is over the cost cap (it is not trained)."""
 
 
+def _never_learned(attrs: Mapping[str, Any]) -> bool:
+    """True for a trial pruned as a static policy or as a net that does not learn (``keys.POLICY_LEARNS``)."""
+    return bool(attrs.get(keys.STATIC_POLICY) or attrs.get(keys.DOES_NOT_LEARN))
+
+
 def race_entry(t: FrozenTrial) -> tuple[float, int | None, dict[str, Any]] | None:
     """(score, budget, config) a trial enters the seed race with, or None: its best scored net (``net_rank``
     over its value and its kept rungs, ``records.best_net``'s rule) and the configuration that trained it — at
@@ -925,7 +929,7 @@ def race_entry(t: FrozenTrial) -> tuple[float, int | None, dict[str, Any]] | Non
     to steer).
     """
     config = t.user_attrs.get(keys.CONFIG)
-    if not isinstance(config, dict) or t.user_attrs.get(keys.STATIC_POLICY) or t.user_attrs.get(keys.DOES_NOT_LEARN):
+    if not isinstance(config, dict) or _never_learned(t.user_attrs):
         return None
     found: list[tuple[float, int | None]] = [(score, budget) for budget, score in kept_rungs(t.user_attrs)]
     if t.state == TrialState.COMPLETE and t.value is not None:

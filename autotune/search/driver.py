@@ -60,6 +60,7 @@ from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
 from autotune.search import keys, racing, space
+from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, features, plan
 from autotune.search.gate import CostGatedSampler, distributions
 from autotune.search.ladder import Ladder, rung_config
@@ -145,21 +146,29 @@ def make_sampler(
     cap: Callable[[], float] | None = None,
 ) -> optuna.samplers.BaseSampler:
     """The spec's sampler, seeded, its startup count ``[study] sampler_startup_trials``; TPE multivariate with
-    constant liar in parallel. With ``price`` it sits behind the cost gate (``gate.CostGatedSampler``), whose
+    constant liar in parallel; behind ``balance.BalancedSampler`` when ``[study] balance`` names parameters
+    (its conditional sampler seeded ``seed + 1``, its startup split between the values). With ``price``
+    it sits behind the cost gate (``gate.CostGatedSampler``), whose
     cap is ``cap()`` when given (the driver's: the study's cost cap or the time left, whichever is less)."""
     name = spec.study.sampler
     needs = {"cmaes": "cmaes", "gp": "scipy"}.get(name)
     if needs is not None and importlib.util.find_spec(needs) is None:
         raise ConfigError(f"{spec.source}: [study] sampler: '{name}' needs the '{needs}' package; pip install {needs}")
     base = _base_sampler(spec, seed, name)
+    if spec.study.balance:  # each value of a balanced parameter keeps its share (``balance.BalancedSampler``)
+        dims = spec.dimensions
+        choices = {n: dims[n].choices for n in spec.study.balance}
+        per_value = conditional_startup(spec.study.sampler_startup_trials, max(len(c) for c in choices.values()))
+        conditional = _base_sampler(spec, seed + 1, name, startup=per_value)
+        base = BalancedSampler(base, conditional, choices, spec.study.balance_min_share)
     if price is None:
         return base
     return CostGatedSampler(base, spec, price, cap if cap is not None else spec.study.cost_cap_s, seed)
 
 
-def _base_sampler(spec: StudySpec, seed: int, name: str) -> optuna.samplers.BaseSampler:
+def _base_sampler(spec: StudySpec, seed: int, name: str, startup: int | None = None) -> optuna.samplers.BaseSampler:
     s = optuna.samplers
-    startup = spec.study.sampler_startup_trials
+    startup = spec.study.sampler_startup_trials if startup is None else startup
     if name == "tpe":
         return s.TPESampler(
             seed=seed, n_startup_trials=startup, multivariate=True, group=True,
@@ -775,6 +784,10 @@ class Driver:
         trial.set_user_attr(keys.PREDICTED_RUNG_COSTS, list(predicted.costs))
         if isinstance(self.study.sampler, CostGatedSampler):
             trial.set_user_attr(keys.REFUSED_DRAWS, self.study.sampler.refused(trial.number))
+            balanced = self.study.sampler.base
+            forced = balanced.forced(trial.number) if isinstance(balanced, BalancedSampler) else None
+            if forced is not None:
+                trial.set_user_attr(keys.BALANCED, f"{forced[0]}={forced[1]}")
         e = self.spec.evaluation
         st = self.spec.study
         task = TrialTask(

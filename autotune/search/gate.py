@@ -20,7 +20,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import optuna
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.samplers import BaseSampler, RandomSampler
 from optuna.study import Study
@@ -119,8 +118,3 @@ class CostGatedSampler(BaseSampler):
 
     def after_trial(self, study: Study, trial: FrozenTrial, state: TrialState, values: Sequence[float] | None) -> None:
         self._base.after_trial(study, trial, state, values)
-
-
-def unwrap(sampler: optuna.samplers.BaseSampler) -> optuna.samplers.BaseSampler:
-    """The sampler under a cost gate (itself otherwise)."""
-    return sampler.base if isinstance(sampler, CostGatedSampler) else sampler

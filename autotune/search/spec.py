@@ -3,7 +3,8 @@
 Five tables, every key optional unless said otherwise::
 
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
-                  sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds
+                  sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
+                  balance, balance_min_share
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -70,6 +71,9 @@ benchmark studies on the full space (1,042 trials): every net that scored 74.3 o
 5–175 % at 10k, except four adagrad nets at learning rates of 1e-8 to 1e-7 (under 0.05 %); 56 % of all trials —
 570 of them adagrad at 1e-8 to 1e-5 — moved under 0.1 %. Such a net's score is its initial weights' luck: the
 cold studies' leaders were of this kind, and on fresh seeds their settings scored 16 to 73."""
+BALANCE_MIN_SHARE = 0.2
+"""Default ``[study] balance_min_share``: each value of a balanced parameter (3 trainer methods) at least a fifth
+of the sampled trials, so the sampler's favourite keeps up to 60 %."""
 FRACTIONS = ("learning_steps_burnin_fraction", "learning_steps_total_fraction")
 """Ladder studies: ε's burn-in and decay length as fractions of the rung's budget (``autotune.search.ladder``)."""
 # [space] names that set a TrainConfig field of another name (sampling coordinates)
@@ -145,6 +149,11 @@ class StudySection:
     """Configurations entering the seed race (the best distinct ones by value)."""
     race_seeds: int = 1
     """Fresh seeds per configuration per race round (the same seeds for every configuration)."""
+    balance: tuple[str, ...] = ()
+    """Categorical [space] parameters whose every value keeps balance_min_share of the sampled trials
+    (``autotune.search.balance``; e.g. ["method"]: TPE cannot starve a trainer method)."""
+    balance_min_share: float = BALANCE_MIN_SHARE
+    """Share of the sampled trials each value of a balanced parameter gets at least (≤ 1 / its choices)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -452,9 +461,19 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     race = _float(table.get("race_fraction", d.race_fraction), f"{src}: [study] race_fraction", 0.0, 0.9)
     race_configs = _int(table.get("race_configs", d.race_configs), f"{src}: [study] race_configs", 2, 1000)
     race_seeds = _int(table.get("race_seeds", d.race_seeds), f"{src}: [study] race_seeds", 1, 100)
+    balance = table.get("balance", [])
+    if not isinstance(balance, list | tuple) or not all(isinstance(b, str) for b in balance):
+        raise where.error("balance", f"must be a list of categorical [space] parameters, got {balance!r}",
+                          'write balance = ["method"]')  # fmt: skip
+    if len(set(balance)) != len(balance):
+        raise where.error("balance", f"names a parameter twice: {list(balance)!r}", "name each parameter once")
+    share = _float(table.get("balance_min_share", d.balance_min_share), f"{src}: [study] balance_min_share", 0.0, 1.0)
+    if share <= 0.0:
+        raise where.error("balance_min_share", f"must be above 0, got {share}",
+                          "e.g. balance_min_share = 0.2 (each value at least a fifth of the draws)")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
-        startup, cap, race, race_configs, race_seeds,
+        startup, cap, race, race_configs, race_seeds, tuple(balance), share,
     )  # fmt: skip
 
 
@@ -697,6 +716,26 @@ def _check_value(
     return value
 
 
+def _check_balance(spec: StudySpec) -> None:
+    """[study] balance names categorical, non-layout [space] parameters whose values can all get the share."""
+    st = spec.study
+    where = _Where(spec.source, "study")
+    if st.balance and st.sampler not in ("tpe", "random"):
+        raise where.error("balance", f"needs a sampler whose model is its trial history; '{st.sampler}' is not",
+                          'use sampler = "tpe" (or "random"), or remove balance')  # fmt: skip
+    dims = spec.dimensions
+    categorical = [n for n, d in dims.items() if d.kind == "categorical" and n not in LAYOUT]
+    for name in st.balance:
+        d = dims.get(name)
+        if d is None or d.kind != "categorical" or name in LAYOUT:
+            what = "is not in [space]" if d is None else "is not a categorical [space] parameter of its own"
+            valid = ", ".join(categorical) or "none (the space has no such parameter)"
+            raise where.error("balance", f"{name!r} {what}{_hint(name, categorical)}", f"name one of: {valid}")
+        if st.balance_min_share * len(d.choices) > 1.0 + 1e-12:
+            raise where.error("balance_min_share", f"{st.balance_min_share} × the {len(d.choices)} values of "
+                              f"{name} is over 1", f"use at most {1 / len(d.choices):.4g}")  # fmt: skip
+
+
 def _check_combination(spec: StudySpec) -> None:
     """Cross-table rules: nothing both fixed and searched, a complete layout, a threshold below the experience."""
     src = spec.source
@@ -730,6 +769,7 @@ def _check_combination(spec: StudySpec) -> None:
             if name in dims:
                 raise where.error(name, "fractions of the budget need a [ladder]",
                                   "add [ladder] rungs = [...] or search learning_steps_* directly")  # fmt: skip
+    _check_balance(spec)
     exp = dims.get("experience_size")
     if "start_learn_threshold" in fixed and exp is not None:
         smallest = min(exp.choices) if exp.kind == "categorical" else exp.low

@@ -1,4 +1,5 @@
-"""A ladder smoke study launched for real (Ray, journal): rungs reported at B_r/B_0, the seed race, ``best``.
+"""A ladder smoke study launched for real (Ray, journal): rungs reported at B_r/B_0, the balanced trainer
+method, the seed race, ``best``.
 
 One ~1-minute launch: trials climb a 2-rung ladder under successive halving, the trial budget runs
 out, then the race retrains the best configurations with the same fresh seeds; ``autotune best``
@@ -33,6 +34,8 @@ sampler_startup_trials = 2
 race_fraction = 0.5
 race_configs = 3
 race_seeds = 1
+balance = ["method"]
+balance_min_share = 0.5
 
 [ladder]
 rungs = [500, 1500]
@@ -71,6 +74,9 @@ def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
     trials = study.get_trials(deepcopy=False)
     original = [t for t in trials if "race_of" not in t.user_attrs and "retry_of" not in t.user_attrs]
     assert len(original) == 5
+    methods = [t.params["method"] for t in original]  # balanced: the draws alternate, the first two forced
+    assert methods.count("sgd") >= 2 and methods.count("adagrad") >= 2, methods
+    assert [t.user_attrs.get("balanced") for t in original[:2]] == ["method=sgd", "method=adagrad"]
     for t in original:
         assert set(t.intermediate_values) <= {1, 3}  # rung r reported at step B_r / B_0
         assert t.user_attrs["predicted_cost_s"] > 0 and t.user_attrs["refused_draws"] >= 0

@@ -28,10 +28,7 @@ from optuna.samplers import BaseSampler
 from optuna.study import Study
 from optuna.trial import FrozenTrial, TrialState
 
-__all__ = ["BalancedSampler", "BALANCEABLE_SAMPLERS", "forced_value"]
-
-BALANCEABLE_SAMPLERS = ("tpe", "random")
-"""Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
+__all__ = ["BalancedSampler", "conditional_startup", "forced_value"]
 
 
 def forced_value(counts: dict[Any, int], min_share: float) -> Any | None:

@@ -72,6 +72,8 @@ benchmark studies on the full space (1,042 trials): every net that scored 74.3 o
 570 of them adagrad at 1e-8 to 1e-5 — moved under 0.1 %. Such a net's score is its initial weights' luck: the
 cold studies' leaders were of this kind, and on fresh seeds their settings scored 16 to 73."""
 BALANCE_MIN_SHARE = 0.2
+BALANCEABLE_SAMPLERS = ("tpe", "random")
+"""Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
 """Default ``[study] balance_min_share``: each value of a balanced parameter (3 trainer methods) at least a fifth
 of the sampled trials, so the sampler's favourite keeps up to 60 %."""
 FRACTIONS = ("learning_steps_burnin_fraction", "learning_steps_total_fraction")
@@ -720,7 +722,7 @@ def _check_balance(spec: StudySpec) -> None:
     """[study] balance names categorical, non-layout [space] parameters whose values can all get the share."""
     st = spec.study
     where = _Where(spec.source, "study")
-    if st.balance and st.sampler not in ("tpe", "random"):
+    if st.balance and st.sampler not in BALANCEABLE_SAMPLERS:
         raise where.error("balance", f"needs a sampler whose model is its trial history; '{st.sampler}' is not",
                           'use sampler = "tpe" (or "random"), or remove balance')  # fmt: skip
     dims = spec.dimensions

@@ -85,6 +85,8 @@ LAYOUT = ("n_layers", "neurons", "activation")
 # train length the plain loop searches when the spec has neither it nor a [ladder] (paper.toml's old range)
 FALLBACK_ITERATIONS = {"low": 5_000, "high": 1_000_000, "log": True}
 FRACTION = "_fraction"  # [space] names <setting>_fraction: that setting as a fraction of train_iterations
+LR_X_INPUTS = "learning_rate_x_inputs"  # the service's learning rate per input; the plain loop samples the rate
+PLAIN_LEARNING_RATE = {"low": 1e-8, "high": 1e-2, "log": True}  # itself, over the crowd's range (the loop)
 FINISHED = ("COMPLETE", "PRUNED", "FAIL")
 LIMIT_CAUSE = "timeout"  # causes of trials stopped by a wall-time limit start with this
 PRUNE_CAUSES = (  # (how the objective's cause starts, its label in the figures), first match wins
@@ -167,6 +169,10 @@ def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
         base = d.name.removesuffix(FRACTION)
         if base in settings or d.name in LAYOUT or d.name == "one_minus_gamma":
             dims.append(d)
+        elif d.name == LR_X_INPUTS and "learning_rate" not in spec.fixed_values:
+            dims.append(Dimension("learning_rate", "float", **PLAIN_LEARNING_RATE))  # type: ignore[arg-type]
+            notes.append(f"plain loop: [space] {LR_X_INPUTS} sampled as learning_rate over the crowd's range "
+                         f"{PLAIN_LEARNING_RATE['low']:g}–{PLAIN_LEARNING_RATE['high']:g} (log)")  # fmt: skip
         else:
             notes.append(f"plain loop: [space] {d.name} is not a training setting; not sampled")
     names = {d.name for d in dims}

@@ -69,10 +69,16 @@ def test_toml_values() -> None:
 def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
     spec = load_spec(PAPER)
     dims, notes = sq.plain_space(spec)
-    assert {d.name for d in dims} == {d.name for d in spec.space} | {"train_iterations"}
+    # the service's learning rate per input is the user's learning rate over the crowd's range
+    assert {d.name for d in dims} == {d.name for d in spec.space} - {"learning_rate_x_inputs"} | {
+        "train_iterations",
+        "learning_rate",
+    }
     (length,) = [d for d in dims if d.name == "train_iterations"]
     assert (length.low, length.high, length.log) == (10_000, 90_000, True)  # the ladder's range up to min_top
-    assert len(notes) == 1 and "ladder" in notes[0]
+    (rate,) = [d for d in dims if d.name == "learning_rate"]
+    assert (rate.low, rate.high, rate.log) == (1e-8, 1e-2, True)
+    assert len(notes) == 2 and "learning_rate over the crowd's range" in notes[0] and "ladder" in notes[1]
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
     layer_counts = set()
     for _ in range(40):

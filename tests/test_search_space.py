@@ -137,6 +137,8 @@ def test_round_trip() -> None:
             for key, value in params.items():
                 if key == "one_minus_gamma":
                     assert math.isclose(back[key], value, rel_tol=0.0, abs_tol=1e-15), key  # gamma has 15 digits
+                elif key == "learning_rate_x_inputs":  # the rate has 15 digits: the product comes back to 1e-14
+                    assert math.isclose(back[key], value, rel_tol=1e-14), key
                 elif key == "start_learn_threshold":
                     assert back[key] == config.start_learn_threshold  # capped below the memory and the budget
                 elif key.endswith("_fraction"):
@@ -271,3 +273,58 @@ def test_default_space_spans_the_crowd() -> None:
         total += 1
         inside += not space.outside(spec, params)
     assert inside >= 0.85 * total, f"only {inside}/{total} crowd configs inside DEFAULT_SPACE"
+
+
+# -- the learning rate per input (spec.LR_X_INPUTS) ----------------------------------------------
+
+
+def _lr_spec(**extra: Any) -> StudySpec:
+    table: dict[str, Any] = {
+        "study": {"name": "lr", "n_trials": 1},
+        "space": {"patches_ahead": {"low": 1, "high": 60}, "learning_rate_x_inputs": {"low": 1e-3, "high": 1.0,
+                                                                                       "log": True}},
+    }  # fmt: skip
+    for name, value in extra.items():
+        table.setdefault(name.split("__")[0], {})[name.split("__")[1]] = value
+    return parse_spec(table)
+
+
+def test_learning_rate_is_the_product_over_the_input_width() -> None:
+    spec = _lr_spec()
+    narrow = space.to_config(spec, {"patches_ahead": 1, "learning_rate_x_inputs": 0.5})
+    wide = space.to_config(spec, {"patches_ahead": 60, "learning_rate_x_inputs": 0.5})
+    assert narrow.net_inputs < wide.net_inputs
+    for config in (narrow, wide):  # the same product: a rate that shrinks as the view widens
+        assert math.isclose(config.learning_rate * config.net_inputs, 0.5, rel_tol=1e-14)
+    assert math.isclose(narrow.learning_rate / wide.learning_rate, wide.net_inputs / narrow.net_inputs)
+    assert space.encode(spec, wide)["learning_rate_x_inputs"] == pytest.approx(0.5, rel=1e-14)
+
+
+def test_paper_searches_the_learning_rate_per_input_over_the_crowds_products() -> None:
+    spec = load_spec(CONFIGS / "paper.toml")
+    d = spec.dimensions["learning_rate_x_inputs"]
+    assert "learning_rate" not in spec.dimensions and d.log
+    products = []
+    for row in _crowd_rows():
+        try:
+            config = _crowd_config(row)
+        except ConfigError:
+            continue
+        products.append(config.learning_rate * config.net_inputs)
+    assert d.low <= min(products) and max(products) <= d.high  # every crowd setting's rate is reachable
+
+
+def test_learning_rate_searched_twice_or_fixed_is_refused() -> None:
+    with pytest.raises(SpecError, match=r"learning_rate_x_inputs.*learning_rate.*keep one"):
+        _lr_spec(space__learning_rate={"low": 1e-4, "high": 1e-2})
+    with pytest.raises(SpecError, match=r"\[fixed\] also sets learning_rate"):
+        _lr_spec(fixed__learning_rate=1e-3)
+    with pytest.raises(SpecError, match=r"learning_rate_x_inputs.*above 0|log scale needs low > 0"):
+        _lr_spec(space__learning_rate_x_inputs={"low": 0.0, "high": 1.0, "log": True})
+
+
+def test_a_product_too_large_for_the_narrowest_view_is_refused() -> None:
+    spec = _lr_spec(space__learning_rate_x_inputs={"low": 1e-3, "high": 1e3, "log": True})
+    with pytest.raises(SpecError, match=r"learning_rate_x_inputs's high with the narrowest view.*narrow the range"):
+        space.check(spec)
+    space.check(_lr_spec())  # the narrowest view (1 patch ahead, the page's other defaults) at 1.0: a valid rate

@@ -3,7 +3,8 @@
 ``sample(trial, spec)`` uses only ``trial.suggest_int / suggest_float / suggest_categorical``
 (duck typing: this module does not import optuna), so the same code serves an Optuna trial, a
 fixed-params trial or a test double. Params are in sampling coordinates — ``one_minus_gamma``
-on a log scale instead of gamma, ε's schedule as fractions of the budget in a ladder study — and
+on a log scale instead of gamma, the learning rate per input (``learning_rate_x_inputs``), ε's schedule
+as fractions of the budget in a ladder study — and
 ``to_config`` turns them into the real TrainConfig; ``encode`` is the inverse, so crowd submissions
 enter a study under the same names. ``check`` is a loaded spec's last validation: its space's corners
 must map to configurations deepqlearn accepts. This module reads ``autotune.search.spec`` (the parsed
@@ -28,6 +29,7 @@ from autotune.search.spec import (
     _FIELD_OF,
     FRACTIONS,
     LAYOUT,
+    LR_X_INPUTS,
     Dimension,
     SpecError,
     StudySpec,
@@ -97,12 +99,17 @@ DEFAULT_SPACE: dict[str, dict[str, Any]] = {
     "activation": {"choices": ["relu", "tanh", "sigmoid", "maxout"]},
 }
 
+# learning_rate × net_inputs (spec.LR_X_INPUTS): crowd 6.8e-6–9.3, its sgd nets of 74+ mph 0.1–0.8
+_LR_X_INPUTS_RANGE = {"low": 1e-6, "high": 10.0, "log": True}
+
 # paper.toml's space: the same Table-1 settings on a budget ladder — the training length is the ladder's,
+# the learning rate is searched per input of the net (one range fits every view: spec.LR_X_INPUTS),
 # ε's schedule is searched as fractions of each rung's budget (crowd: burn-in 0.06 %–37.5 % of
 # trainIterations, decay end 1 %–2,500 %, 10–90 % quantiles 0.5 %–20 % and 10 %–150 %), and the trainer
 # method joins (the best v2 human net, jnorthrup-v05, trained with adagrad; convnetjs's three methods).
 PAPER_SPACE: dict[str, dict[str, Any]] = {
-    **{k: v for k, v in DEFAULT_SPACE.items()
+    **{(LR_X_INPUTS if k == "learning_rate" else k): (_LR_X_INPUTS_RANGE if k == "learning_rate" else v)
+       for k, v in DEFAULT_SPACE.items()
        if k not in ("train_iterations", "learning_steps_total", "learning_steps_burnin", "n_layers", "neurons",
                     "activation")},
     "learning_steps_burnin_fraction": {"low": 5e-4, "high": 0.5, "log": True},
@@ -153,6 +160,7 @@ def to_config(spec: StudySpec, params: Mapping[str, Any], budget: int | None = N
 
     ``start_learn_threshold`` (unless fixed) is capped at ``experience_size − 1``; gamma is
     ``1 − one_minus_gamma`` printed to 15 significant digits (so 0.3 stays 0.3 after the round trip).
+    A searched ``learning_rate_x_inputs`` is divided by the configuration's ``net_inputs`` (15 significant digits).
     In a ladder study ``budget`` is the training length (default: the ladder's last rung), the
     ε fractions become iterations at it and the threshold is capped at a quarter of it.
     """
@@ -165,11 +173,14 @@ def to_config(spec: StudySpec, params: Mapping[str, Any], budget: int | None = N
         raise SpecError(f"params: {missing[0]!r} is missing; sample() gives every parameter of the space")
     values = spec.fixed_values
     fractions: dict[str, float] = {}
+    lr_x_inputs: float | None = None
     for d in spec.space:
         if d.name in LAYOUT:
             continue
         if d.name == "one_minus_gamma":
             values["gamma"] = one_minus(params["one_minus_gamma"])
+        elif d.name == LR_X_INPUTS:
+            lr_x_inputs = float(params[LR_X_INPUTS])
         elif d.name in FRACTIONS:
             fractions[d.name] = float(params[d.name])
         else:
@@ -194,15 +205,19 @@ def to_config(spec: StudySpec, params: Mapping[str, Any], budget: int | None = N
             exp = values.get("experience_size", TrainConfig().experience_size)
             start = values.get("start_learn_threshold", TrainConfig().start_learn_threshold)
             values["start_learn_threshold"] = cap_start(int(start), int(exp), b)
+    if lr_x_inputs is not None:  # the input width follows from the view, fixed or searched
+        width = build_config(spec.ruleset, values, cap_start=cap).net_inputs
+        values["learning_rate"] = float(f"{lr_x_inputs / width:.15g}")  # 15 digits: encode's product maps back
     return build_config(spec.ruleset, values, cap_start=cap)
 
 
 def check(spec: StudySpec) -> StudySpec:
     """``spec`` if its space maps to valid configurations, else ``SpecError`` naming the corner and the fix.
 
-    Probed: every parameter at its low corner, every one at its high corner (with [fixed]), and the
-    narrowest layer with each activation — where deepqlearn's own rules (an empty input, a 1-neuron
-    maxout layer, …) reject a combination the per-key ranges allow.
+    Probed: every parameter at its low corner, every one at its high corner (with [fixed]), the largest
+    learning rate per input on the narrowest view, and the narrowest layer with each activation — where
+    deepqlearn's own rules (an empty input, a 1-neuron maxout layer, a rate above 10, …) reject a combination
+    the per-key ranges allow.
     """
     for label, params in _probe_points(spec):
         try:
@@ -229,8 +244,11 @@ def _probe_points(spec: StudySpec) -> list[tuple[str, dict[str, Any]]]:
                 params[f"neurons_{i}"] = _corner(dims["neurons"], pick)
                 params[f"activation_{i}"] = dims["activation"].choices[pick]
         points.append((label, params))
+    dims = spec.dimensions
+    if LR_X_INPUTS in dims:  # the largest learning rate: the largest product on the narrowest view
+        points.append((f"{LR_X_INPUTS}'s high with the narrowest view",
+                       {**points[0][1], LR_X_INPUTS: _corner(dims[LR_X_INPUTS], -1)}))  # fmt: skip
     if spec.searches_layout:
-        dims = spec.dimensions
         if max(_corner(dims["n_layers"], 0), _corner(dims["n_layers"], -1)) >= 1:
             narrow = _corner(dims["neurons"], 0)
             for act in dims["activation"].choices:
@@ -270,6 +288,9 @@ def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
         if d.name in FRACTIONS:
             steps = config.learning_steps_burnin if d.name == FRACTIONS[0] else config.learning_steps_total
             params[d.name] = steps / max(1, config.train_iterations)
+            continue
+        if d.name == LR_X_INPUTS:
+            params[d.name] = config.learning_rate * config.net_inputs
             continue
         value = getattr(config, _FIELD_OF.get(d.name, d.name))
         params[d.name] = one_minus(value) if d.name == "one_minus_gamma" else value

@@ -103,7 +103,7 @@ DEFAULT_SPACE: dict[str, dict[str, Any]] = {
 _LR_X_INPUTS_RANGE = {"low": 1e-6, "high": 10.0, "log": True}
 
 # paper.toml's space: the same Table-1 settings on a budget ladder — the training length is the ladder's,
-# the learning rate is searched per input of the net (one range fits every view: spec.LR_X_INPUTS),
+# the learning rate is searched per input of the net (its good range moves far less with the view: spec.LR_X_INPUTS),
 # ε's schedule is searched as fractions of each rung's budget (crowd: burn-in 0.06 %–37.5 % of
 # trainIterations, decay end 1 %–2,500 %, 10–90 % quantiles 0.5 %–20 % and 10 %–150 %), and the trainer
 # method joins (the best v2 human net, jnorthrup-v05, trained with adagrad; convnetjs's three methods).

@@ -557,13 +557,17 @@ def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -
 
 
 def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> None:
-    """An entrant is a trial's best scored net: a kept rung that beat its trial's top races at its own budget
-    (``rung_config``: what the rung trained), a pruned trial's kept rung may enter, a static policy may not;
-    ``race_summary`` names the budget and the rung's score, and a resumed driver races the same configs."""
+    """An entrant is a trial's best scored net at min_top or above (here 400): a kept rung that beat its trial's
+    top races at its own budget (``rung_config``: what the rung trained), a pruned trial's kept rung may enter, a
+    static policy may not; ``race_summary`` names the budget and the rung's score, and a resumed driver races
+    the same configs."""
     from autotune.search.driver import race_entry
     from autotune.search.records import race_summary
 
-    spec = _spec(race_configs=3, race_seeds=1).with_overrides(storage=str(tmp_path / "j.log"))
+    data = _spec(race_configs=3, race_seeds=1).to_dict()
+    data["ladder"]["min_top"] = 400
+    spec = parse_spec(data, source="race.toml").with_overrides(storage=str(tmp_path / "j.log"))
+    assert spec.race_min_budget == 400
     storages = open_storage(spec.study.storage, spec.study.name)
     driver = Driver(spec, storages)
     study = driver.open_study()
@@ -589,9 +593,14 @@ def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> No
     add("fc:2:tanh", done, 71.5, {400: 71.5, 1200: 71.5})  # 4: a tie goes to the value (no budget)
     trials = study.trials
     at_400 = rung_config(TrainConfig.from_mapping(trials[0].user_attrs[keys.CONFIG]), 400)
-    assert race_entry(trials[0]) == (74.0, 400, at_400.to_mapping()) and at_400.train_iterations == 400
-    assert race_entry(trials[1]) == (72.0, None, trials[1].user_attrs[keys.CONFIG])
-    assert race_entry(trials[3]) is None and race_entry(trials[4])[1] is None  # type: ignore[index]
+    assert race_entry(trials[0], 400) == (74.0, 400, at_400.to_mapping()) and at_400.train_iterations == 400
+    assert race_entry(trials[1], 400) == (72.0, None, trials[1].user_attrs[keys.CONFIG])
+    assert race_entry(trials[3], 400) is None and race_entry(trials[4], 400)[1] is None  # type: ignore[index]
+    # with the whole ladder gated (no min_top) the 400 rungs only screen: trial 0 enters with its top, trial 2
+    # (pruned after its 400 rung) not at all
+    assert _spec().race_min_budget == 1200
+    assert race_entry(trials[0], 1200) == (70.0, None, trials[0].user_attrs[keys.CONFIG])
+    assert race_entry(trials[2], 1200) is None
 
     driver._t0 = time.perf_counter()  # noqa: SLF001
     field, _results, _launched = driver._race_state()  # noqa: SLF001

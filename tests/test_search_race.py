@@ -17,6 +17,7 @@ import optuna
 import pytest
 
 from autotune.search.driver import StudyCounts, race_entry
+from autotune.search.spec import load_spec
 from tests.test_search_launch import finish, launch, load, tagged_processes
 
 SPEC = """
@@ -87,12 +88,14 @@ def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
     field = study.user_attrs["race_field"]
     assert 1 <= len(field) <= 3
     race = [t for t in trials if "race_of" in t.user_attrs]
-    assert race and {t.user_attrs["race_of"] for t in race} <= set(field)
+    min_budget = load_spec(spec).race_min_budget
+    assert min_budget == 1500 and race and {t.user_attrs["race_of"] for t in race} <= set(field)
     by_seed: dict[int, set[int]] = {}
     for t in race:  # the same fresh seed for every configuration of a round, never a selecting trial's seed
         by_seed.setdefault(t.user_attrs["race_seed"], set()).add(t.user_attrs["seed"])
         assert t.user_attrs["seed"] not in {o.user_attrs["seed"] for o in original}
-        assert t.user_attrs["config"] == race_entry(trials[t.user_attrs["race_of"]])[2]  # type: ignore[index]
+        entry = race_entry(trials[t.user_attrs["race_of"]], min_budget)  # no 500-iteration net enters
+        assert entry is not None and t.user_attrs["config"] == entry[2]
         assert t.state == optuna.trial.TrialState.COMPLETE, t.user_attrs.get("cause")
     assert all(len(seeds) == 1 for seeds in by_seed.values())
     expected, n = 0, len(field)  # successive halving: every survivor of a round runs, until one is left

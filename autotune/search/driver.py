@@ -457,7 +457,7 @@ class Driver:
             left = self._time_left()
             candidates, budgets = [], {}
             for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
-                entry = race_entry(t) if _original(t) else None
+                entry = race_entry(t, self.spec.race_min_budget) if _original(t) else None
                 if entry is not None and self._race_cost(entry[2]) <= left:
                     candidates.append((t.number, entry[0], entry[2]))
                     budgets[t.number] = entry[1]
@@ -931,21 +931,26 @@ def _never_learned(attrs: Mapping[str, Any]) -> bool:
     return bool(attrs.get(keys.STATIC_POLICY) or attrs.get(keys.DOES_NOT_LEARN))
 
 
-def race_entry(t: FrozenTrial) -> tuple[float, int | None, dict[str, Any]] | None:
+def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, dict[str, Any]] | None:
     """(score, budget, config) a trial enters the seed race with, or None: its best scored net (``net_rank``
-    over its value and its kept rungs, ``records.best_net``'s rule) and the configuration that trained it — at
-    a kept rung, ``rung_config`` at that budget, exactly what the rung trained.
+    over its value and its kept rungs) among those trained for ``min_budget`` iterations or more
+    (``StudySpec.race_min_budget``), and the configuration that trained it — at a kept rung, ``rung_config`` at
+    that budget, exactly what the rung trained.
 
-    A rung that beat its trial's top is raced at its own budget: the cold studies' top rungs at 270k–810k often
-    score below their 10k–90k nets, and a cheap entrant's runs cost a fraction (4 s at 10k against 130 s at
-    810k). A trial pruned as a static policy or as one that does not learn does not enter (its net never learned
-    to steer).
+    A rung at or above ``min_budget`` that beat its trial's top is raced at its own budget: the cold studies' top
+    rungs at 270k–810k often score below their 90k nets. Rungs below it never enter: their scores are screening
+    draws whose seed spread (sd ~10 mph at 10k, 1–3 at 90k) makes the best of a study's dozens a lucky seed — the
+    10k and 30k nets that led the benchmark's races averaged 61 mph over fresh seeds. A trial pruned as a static
+    policy or as one that does not learn does not enter (its net never learned to steer).
     """
     config = t.user_attrs.get(keys.CONFIG)
     if not isinstance(config, dict) or _never_learned(t.user_attrs):
         return None
-    found: list[tuple[float, int | None]] = [(score, budget) for budget, score in kept_rungs(t.user_attrs)]
-    if t.state == TrialState.COMPLETE and t.value is not None:
+    found: list[tuple[float, int | None]] = [
+        (score, budget) for budget, score in kept_rungs(t.user_attrs) if budget >= min_budget
+    ]
+    top = config.get("train_iterations")
+    if t.state == TrialState.COMPLETE and t.value is not None and isinstance(top, int) and top >= min_budget:
         found.append((float(t.value), None))
     found = [f for f in found if math.isfinite(f[0])]
     if not found:

@@ -304,6 +304,13 @@ class StudySpec:
         return int(max(d.choices)) if d.kind == "categorical" else int(d.high or 0)
 
     @property
+    def race_min_budget(self) -> int:
+        """Iterations below which a net does not enter the seed race: the gated top (``min_top``, else the last
+        rung); 0 without a ladder. Lower rungs screen: a 10k training's score moves ~10 mph with its seed, so the
+        best of dozens is one seed's luck (such entrants averaged 61 mph over fresh seeds, those at ≥ 90k 72)."""
+        return self.ladder[self.gated_rungs - 1] if self.ladder else 0
+
+    @property
     def gated_rungs(self) -> int:
         """How many of the ladder's rungs the cost gate prices a draw at (all of them unless ``min_top``)."""
         if not self.ladder_min_top:

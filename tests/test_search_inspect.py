@@ -165,6 +165,27 @@ def test_embedded_default_storage(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "out" / "net.js").exists()
 
 
+def test_a_run_directory_names_its_study(journal_study, capsys, tmp_path):
+    """STUDY with a '/' is a run directory: its journal.log and artifacts, the name from its study.toml (a
+    benchmark's directory cold-s0 holds study sq-cold-s0), else the directory's name; no journal is one line."""
+    storage, _, _ = journal_study
+    run_dir = Path(storage).parent
+    code, out, err = run_cli(capsys, "best", str(run_dir), "--export", str(tmp_path / "e"))
+    assert code == 2 and "no study 's'" in err  # no study.toml: the directory's name, which holds no such study
+    (run_dir / "study.toml").write_text('[study]\nname = "demo"\n')
+    code, out, err = run_cli(capsys, "best", str(run_dir), "--export", str(tmp_path / "e"))
+    assert code == 0, err
+    assert out.startswith("best trial 1 of demo: 70.50 mph") and (tmp_path / "e" / "net.js").exists()
+    code, out, err = run_cli(capsys, "status", str(run_dir) + "/", "--json")
+    assert code == 0 and json.loads(out)["best"]["number"] == 1
+    code, out, err = run_cli(capsys, "best", str(tmp_path / "nowhere"))
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "no journal.log in that directory; give a study name (runs/<study>/)" in err
+    (run_dir / "study.toml").write_text("[study]\n")
+    code, out, err = run_cli(capsys, "best", str(run_dir))
+    assert code == 2 and "study.toml: no [study] name to read" in err
+
+
 def test_unknown_study_lists_the_storage_studies(journal_study, capsys):
     storage, _, _ = journal_study
     code, out, err = run_cli(capsys, "status", "dmeo", "--storage", storage)

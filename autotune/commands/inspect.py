@@ -5,6 +5,8 @@
     autotune dashboard [STUDY] [--storage URL] [--port N]
 
 ``--storage`` is what ``autotune launch`` was given ('' = the embedded runs/<study>/journal.log);
+STUDY may also be a study's run directory (``runs/paper``, a benchmark's ``runs/search_quality/…/cold-s0``):
+its journal.log and artifacts are read, the name taken from its study.toml;
 ``--artifacts DIR`` where the trained networks were stored when that was not the default.
 ``dashboard`` serves optuna-dashboard on 127.0.0.1 with the study's artifact store attached (trained
 nets and net.js downloadable per trial) until Ctrl-C, read-only (the page cannot create, change or
@@ -37,7 +39,7 @@ def add_parser(subparsers: Any) -> None:
         help="a study's trial counts by state, best trial and throughput",
         description="Counts by trial state, the best trial, and throughput (trials/h, frames/s) of a study.",
     )
-    p.add_argument("study", help="study name")
+    p.add_argument("study", help="study name, or its run directory (runs/<study>)")
     add_storage_arguments(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run, inspect="status", process_settings=False)
@@ -49,7 +51,7 @@ def add_parser(subparsers: Any) -> None:
         "ladder rung, whichever scored higher) and the seed race's best configuration; --export DIR writes the "
         "best single net (net.json + net.config.json with its own settings) and the site-ready net.js.",
     )
-    p.add_argument("study", help="study name")
+    p.add_argument("study", help="study name, or its run directory (runs/<study>)")
     add_storage_arguments(p)
     p.add_argument("--export", metavar="DIR", help="write net.json, net.config.json and net.js into DIR")
     p.add_argument("--json", action="store_true", help="print the trial record as one JSON object")
@@ -61,7 +63,12 @@ def add_parser(subparsers: Any) -> None:
         description="Start optuna-dashboard on 127.0.0.1 for the storage, with the artifact store attached; "
         "serves until Ctrl-C.",
     )
-    p.add_argument("study", nargs="?", default="", help="study name (locates the embedded storage and artifacts)")
+    p.add_argument(
+        "study",
+        nargs="?",
+        default="",
+        help="study name (locates the embedded storage and artifacts) or its run directory",
+    )
     add_storage_arguments(p)
     p.add_argument(
         "--port", type=int, default=DEFAULT_PORT, help=f"port on 127.0.0.1 (default {DEFAULT_PORT}; 0: any free port)"
@@ -163,10 +170,41 @@ def _dashboard(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_directory(args: argparse.Namespace) -> None:
+    """A STUDY with a '/' (and no --storage) is a run directory: read its journal.log, under the name its
+    study.toml gives (the directory's own name when it has none). Paths are what a user copies from ``ls runs/``;
+    a bare name stays a study name (runs/<study>/)."""
+    from pathlib import Path
+
+    from autotune.search.storage import StorageError
+
+    if args.storage or "/" not in args.study:  # a bare name is a study name (runs/<study>/)
+        return
+    path = Path(args.study)
+    if not (path / "journal.log").is_file():
+        raise StorageError(
+            f"study '{args.study}': no journal.log in that directory; give a study name (runs/<study>/), a run "
+            "directory that holds journal.log, or --storage"
+        )
+    name = path.resolve().name
+    toml = path / "study.toml"
+    if toml.is_file():
+        import tomllib
+
+        try:
+            name = str(tomllib.loads(toml.read_text())["study"]["name"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise StorageError(
+                f"{toml}: no [study] name to read ({exc}); pass the name and --storage {path}/journal.log"
+            ) from exc
+    args.storage, args.study = str(path / "journal.log"), name
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the chosen inspection; 0, or 1 when there is no record to show yet (bad input raises ConfigError)."""
     from autotune.search.records import RecordError
 
+    _run_directory(args)
     try:
         return {"status": _status, "best": _best, "dashboard": _dashboard}[args.inspect](args)
     except RecordError as exc:  # not bad input: the study has nothing to show yet (its own exit status)

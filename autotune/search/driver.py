@@ -950,7 +950,8 @@ def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, 
         (score, budget) for budget, score in kept_rungs(t.user_attrs) if budget >= min_budget
     ]
     top = config.get("train_iterations")
-    if t.state == TrialState.COMPLETE and t.value is not None and isinstance(top, int) and top >= min_budget:
+    reached = min_budget <= 0 or (isinstance(top, int) and top >= min_budget)  # the value's own budget
+    if t.state == TrialState.COMPLETE and t.value is not None and reached:
         found.append((float(t.value), None))
     found = [f for f in found if math.isfinite(f[0])]
     if not found:

@@ -594,7 +594,7 @@ def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> No
     trials = study.trials
     at_400 = rung_config(TrainConfig.from_mapping(trials[0].user_attrs[keys.CONFIG]), 400)
     assert race_entry(trials[0], 400) == (74.0, 400, at_400.to_mapping()) and at_400.train_iterations == 400
-    assert race_entry(trials[1], 400) == (72.0, None, trials[1].user_attrs[keys.CONFIG])
+    assert race_entry(trials[1], 400) == race_entry(trials[1]) == (72.0, None, trials[1].user_attrs[keys.CONFIG])
     assert race_entry(trials[3], 400) is None and race_entry(trials[4], 400)[1] is None  # type: ignore[index]
     # with the whole ladder gated (no min_top) the 400 rungs only screen: trial 0 enters with its top, trial 2
     # (pruned after its 400 rung) not at all

@@ -306,8 +306,7 @@ class StudySpec:
     @property
     def race_min_budget(self) -> int:
         """Iterations below which a net does not enter the seed race: the gated top (``min_top``, else the last
-        rung); 0 without a ladder. Lower rungs screen: a 10k training's score moves ~10 mph with its seed, so the
-        best of dozens is one seed's luck (such entrants averaged 61 mph over fresh seeds, those at ≥ 90k 72)."""
+        rung); 0 without a ladder. Lower rungs only screen (why: ``driver.race_entry``)."""
         return self.ladder[self.gated_rungs - 1] if self.ladder else 0
 
     @property

@@ -24,8 +24,8 @@ of ``--minutes``, timed from the arm's first command (process start, compilation
 medians over the runs); ``random`` and ``warm`` use the first seed. At every checkpoint: the best
 single net (max official score of the nets stored by then — COMPLETE trials' values and the kept rungs
 of finished ladder trials, as ``autotune best`` ranks them), the configuration the arm would pick
-(the best trial's; where seed-race trials (``race_of``) have finished, the raced configuration
-with the most race runs and then the best race mean) retrained with ``--reseeds`` fresh seeds — the
+(the best trial's; where seed-race trials (``race_of``) have finished, the race winner as
+``autotune best`` ranks it: ``racing.standings``) retrained with ``--reseeds`` fresh seeds — the
 same seeds for every arm, after the arm's budget, timed apart — and for ``warm`` the best trial that
 was not enqueued (no ``warm_start``). ``--reference`` (a crowd submission id, default gsurma's, the
 best v2 crowd setting our sgd learner replays) is retrained with the same seeds.
@@ -517,8 +517,12 @@ class TrialRow:
     seed: int | None = None
     warm_start: str | None = None
     race_of: int | None = None
+    race_seed: int | None = None
+    """Fresh seed index of a race run (with ``race_of``)."""
     predicted_cost_s: float | None = None
     cause: str | None = None
+    retryable: bool = False
+    """A failed trial whose retry was queued (its retry stands for it)."""
     refused_draws: int | None = None
     rung_scores: tuple[tuple[int, float], ...] = ()
     """(budget, official score) of each rung whose net was kept (ladder trials, pruned ones too)."""
@@ -543,8 +547,10 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 seed=a.get("seed"),
                 warm_start=a.get("warm_start"),
                 race_of=a.get("race_of"),
+                race_seed=a.get("race_seed"),
                 predicted_cost_s=a.get("predicted_cost_s"),
                 cause=a.get("cause"),
+                retryable=bool(a.get("retryable")),
                 refused_draws=a.get("refused_draws"),
                 rung_scores=tuple(kept_rungs(a)),
             )
@@ -603,22 +609,30 @@ def best_net(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> 
     return None if best is None else best[1]
 
 
-def chosen_trial(rows: Sequence[TrialRow], t_s: float) -> TrialRow | None:
-    """The trial whose configuration the arm would pick at ``t_s`` (see the module doc: race mean, else best)."""
-    races: dict[int, list[float]] = {}
-    for r in _complete_by(rows, t_s):
-        if r.race_of is not None:
-            races.setdefault(r.race_of, []).append(float(r.value))  # type: ignore[arg-type]
-    if not races:
+def chosen_trial(rows: Sequence[TrialRow], t_s: float, seeds_per_round: int = 1) -> TrialRow | None:
+    """The trial whose configuration the arm would pick at ``t_s``: the race winner as ``autotune best`` ranks it
+    (``racing.standings`` on the race runs finished by ``t_s``; ``seeds_per_round`` is the study's ``race_seeds``),
+    else the best trial."""
+    from autotune.search import racing
+
+    results: dict[tuple[int, int], float | None] = {}
+    for r in rows:
+        if r.race_of is None or r.race_seed is None:
+            continue
+        state = r.state if r.end_s is not None and r.end_s <= t_s else "RUNNING"
+        is_result, score = racing.run_result(state, r.value, r.cause, r.retryable)
+        if is_result:
+            results[(r.race_of, r.race_seed)] = score
+    if not any(v is not None for v in results.values()):
         return best_single(rows, t_s)
-    most = max(len(v) for v in races.values())
-    root = max((k for k, v in races.items() if len(v) == most), key=lambda k: statistics.fmean(races[k]))
+    field = sorted({r.race_of for r in rows if r.race_of is not None})
+    root = racing.standings(field, results, seeds_per_round)[0].number
     by_number = {r.number: r for r in rows}
     runs = [r for r in _complete_by(rows, t_s) if r.race_of == root]
     raced = next((r.config for r in runs if r.config is not None), None)  # a kept rung's budget, if it entered so
     if root in by_number and by_number[root].config is not None:
         return dataclasses.replace(by_number[root], config=raced or by_number[root].config)
-    return runs[0]
+    return runs[0] if runs else None
 
 
 def running_best(rows: Iterable[TrialRow]) -> list[tuple[float, float]]:
@@ -684,12 +698,16 @@ def config_key(config: Mapping[str, Any]) -> str:
     return json.dumps(config, sort_keys=True)
 
 
-def checkpoint_picks(rows: Sequence[TrialRow], minutes: Sequence[float]) -> list[dict[str, Any]]:
-    """Per checkpoint: the best single net, the best not enqueued, and the configuration picked for reseeding."""
+def checkpoint_picks(
+    rows: Sequence[TrialRow], minutes: Sequence[float], seeds_per_round: int = 1
+) -> list[dict[str, Any]]:
+    """Per checkpoint: the best single net, the best not enqueued, and the configuration picked for reseeding
+    (``seeds_per_round``: the study's ``race_seeds``)."""
     out = []
     for m in minutes:
         t = m * 60.0
-        best, free, chosen = best_net(rows, t), best_net(rows, t, enqueued=False), chosen_trial(rows, t)
+        best, free = best_net(rows, t), best_net(rows, t, enqueued=False)
+        chosen = chosen_trial(rows, t, seeds_per_round)
         out.append(
             {
                 "minutes": m,
@@ -1007,7 +1025,7 @@ def run_arm(arm: str, seed: int, args: argparse.Namespace, ctx: dict[str, Any]) 
         "load_end": load_end,
         "errors": info["errors"],
         **run_figures(rows, info["wall_s"], args.workers, float(ctx["spec"].study.trial_timeout_s)),
-        "checkpoints": checkpoint_picks(rows, ctx["minutes"]),
+        "checkpoints": checkpoint_picks(rows, ctx["minutes"], ctx["spec"].study.race_seeds),
     }
     for e in info["errors"]:
         print(f"  {arm} s{seed}: {e}", file=sys.stderr)

@@ -177,19 +177,44 @@ def test_chosen_trial_prefers_the_raced_configuration() -> None:
     rows = [row(0, 76.0, 10, config={"c": 0}), row(1, 74.0, 20, config={"c": 1})]
     assert sq.chosen_trial(rows, 60).number == 0  # no race yet: the best single net's configuration
     rows += [
-        row(2, 71.0, 30, race_of=0),
-        row(3, 73.0, 31, race_of=1),
-        row(4, 72.0, 40, race_of=0),
-        row(5, 73.5, 41, race_of=1),
-        row(6, 79.0, 50, race_of=0),
+        row(2, 71.0, 30, race_of=0, race_seed=0),
+        row(3, 73.0, 31, race_of=1, race_seed=0),
+        row(4, 72.0, 40, race_of=0, race_seed=1),
+        row(5, 73.5, 41, race_of=1, race_seed=1),
+        row(6, 79.0, 50, race_of=0, race_seed=2),
+        row(7, 80.0, 55, race_of=0, race_seed=3),
     ]
     assert sq.chosen_trial(rows, 35).number == 1  # one race run each: 73 beats 71
     assert sq.chosen_trial(rows, 45).number == 1  # two each: 73.25 beats 71.5
-    assert sq.chosen_trial(rows, 60).number == 0  # trial 0 survived to a third round
-    assert sq.chosen_trial(rows, 60).config == {"c": 0}
-    rung = [row(7, 70.0, 70, race_of=0, config={"c": 0, "train_iterations": 10_000})]  # raced at a kept rung
+    assert sq.chosen_trial(rows, 60).number == 1  # paired: trial 1's seeds 2 and 3 not run, so compared on 0, 1
+    assert sq.chosen_trial(rows, 60).config == {"c": 1}
+    assert sq.chosen_trial(rows, 60, seeds_per_round=4).number == 1  # one round still running: the same
+    assert sq.chosen_trial(rows, 60, seeds_per_round=1).number == 1  # trial 0 out after round 0; its runs after
+    rung = [row(8, 70.0, 70, race_of=1, race_seed=2, config={"c": 1, "train_iterations": 10_000})]  # at a rung
     chosen = sq.chosen_trial(rows + rung, 80)
-    assert chosen.number == 0 and chosen.config == {"c": 0, "train_iterations": 10_000}  # what the race measured
+    assert chosen.number == 1 and chosen.config == {"c": 1, "train_iterations": 10_000}  # what the race measured
+
+
+def test_chosen_trial_leaves_out_the_seeds_the_deadline_stopped() -> None:
+    """The 30-minute cold study's race: entrant 1 led round 0, its round-1 runs ended at the deadline (PRUNED,
+    cause ``deadline…``); the winner is paired on round 0, not entrant 0 for having finished more runs. A race
+    run its own limit stopped, or that failed, ranks its configuration last."""
+    entrants = [row(n, v, 10, config={"c": n}) for n, v in enumerate((73.0, 73.5, 72.0, 71.0))]
+    race = [
+        row(4, 66.7, 20, race_of=0, race_seed=0), row(5, 70.4, 21, race_of=0, race_seed=1),
+        row(6, 72.3, 22, race_of=1, race_seed=0), row(7, 72.5, 23, race_of=1, race_seed=1),
+        row(8, 65.0, 24, race_of=2, race_seed=0), row(9, 66.0, 25, race_of=2, race_seed=1),
+        row(10, 60.0, 26, race_of=3, race_seed=0), row(11, None, 27, race_of=3, race_seed=1, state="FAIL"),
+        row(12, 71.0, 40, race_of=0, race_seed=2), row(13, 72.0, 41, race_of=0, race_seed=3),
+    ]  # fmt: skip
+    deadline = "deadline: the study's time budget ended (training at 80 %)"
+    stopped = [row(14, None, 50, race_of=1, race_seed=2, cause=deadline),
+               row(15, None, 50, race_of=1, race_seed=3, cause=deadline)]  # fmt: skip
+    rows = entrants + race + stopped
+    assert sq.chosen_trial(rows, 45, seeds_per_round=2).number == 1  # round 1 running
+    assert sq.chosen_trial(rows, 60, seeds_per_round=2).number == 1  # and stopped: 72.4 against 68.55 on 0, 1
+    limit = [dataclasses.replace(stopped[0], cause="timeout: trial wall time exceeded trial_timeout_s = 60 s")]
+    assert sq.chosen_trial(entrants + race + limit, 60, seeds_per_round=2).number == 0  # over its limit: last
 
 
 def test_running_best_and_the_run_figures() -> None:

@@ -499,6 +499,70 @@ def test_race_halves_the_field_each_round() -> None:
     assert racing.race_seed(0, 1) == racing.race_seed(0, 1) != racing.race_seed(0, 2)
 
 
+def test_the_race_winner_is_paired_on_the_seeds_every_finalist_has() -> None:
+    """A finalist whose last round the deadline stopped is compared on the seeds all finalists finished, not
+    beaten for having fewer runs; a failed run on a shared seed ranks its configuration last."""
+    deadline = "deadline: the study's time budget ended (training at 80 %)"
+    assert racing.run_result("COMPLETE", 72.5, None) == (True, 72.5)
+    assert racing.run_result("PRUNED", None, deadline) == (False, None)  # no result: the seed is not compared
+    assert racing.run_result("FAIL", None, "worker died", retryable=True) == (False, None)  # its retry stands for it
+    assert racing.run_result("RUNNING", None, None) == (False, None)
+    assert racing.run_result("PRUNED", None, "timeout: trial wall time exceeded") == (True, None)  # ranks last
+    assert racing.run_result("FAIL", None, "ValueError") == (True, None)
+    field = [10, 11, 12, 13]
+    results: dict[tuple[int, int], float | None] = {
+        (10, 0): 66.7, (10, 1): 70.4, (11, 0): 72.3, (11, 1): 72.5, (12, 0): 65.0, (12, 1): 66.0,
+        (13, 0): 60.0, (13, 1): None, (10, 2): 71.0, (10, 3): 72.0,
+    }  # fmt: skip
+    ranked = racing.standings(field, results, 2)
+    assert [st.number for st in ranked] == [11, 10, 12, 13]  # 11's seeds 2, 3 were stopped: 72.4 > 68.55
+    assert ranked[0].finalist and ranked[1].finalist and not ranked[2].finalist
+    assert ranked[0].paired_mean == pytest.approx(72.4) and ranked[1].paired_mean == pytest.approx(68.55)
+    assert ranked[1].scores == (66.7, 70.4, 71.0, 72.0) and ranked[2].paired is None
+    results[(11, 2)] = None  # failed on a seed 10 finished: last among the finalists
+    assert [st.number for st in racing.standings(field, results, 2)][:2] == [10, 11]
+    del results[(11, 2)]
+    results.update({(11, 2): 66.0, (11, 3): 65.0})  # both finished: all four seeds count
+    assert racing.standings(field, results, 2)[0].number == 10  # 70.03 against 68.95
+    assert [racing.standings(field, {}, 2)[i].number for i in range(4)] == field  # no result: the field's order
+
+
+def test_a_race_run_the_deadline_stopped_is_run_again_and_not_held_against_it(tmp_path: Path) -> None:
+    """The driver's race state and ``race_summary`` classify race runs with ``racing.run_result``: a run the
+    deadline stopped is neither launched nor a result (a resumed race runs it again), and the summary's winner
+    is the paired one."""
+    from autotune.search.records import race_summary
+
+    spec = _spec(race_configs=2, race_seeds=2).with_overrides(storage=str(tmp_path / "j.log"))
+    storages = open_storage(spec.study.storage, spec.study.name)
+    driver = Driver(spec, storages)
+    study = driver.open_study()
+    dists = distributions(spec)
+    params = space.encode(spec, TINY)
+    done, pruned = optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED
+
+    def add(state: optuna.trial.TrialState, value: float | None, **attrs: Any) -> None:
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=state,
+                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+
+    add(done, 74.0)
+    add(done, 73.0)
+    study.set_user_attr(keys.RACE_FIELD, [0, 1])
+    add(done, 70.0, **{keys.RACE_OF: 0, keys.RACE_SEED: 0})
+    add(done, 72.0, **{keys.RACE_OF: 1, keys.RACE_SEED: 0})
+    add(pruned, None, **{keys.RACE_OF: 1, keys.RACE_SEED: 1, keys.CAUSE: "deadline: the study's time budget ended"})
+    add(done, 71.0, **{keys.RACE_OF: 0, keys.RACE_SEED: 1})
+    field, results, launched = driver._race_state()  # noqa: SLF001
+    assert field == [0, 1] and results == {(0, 0): 70.0, (1, 0): 72.0, (0, 1): 71.0}
+    assert launched == {(0, 0), (1, 0), (0, 1)}
+    runs, over = racing.next_runs(field, results, launched, 2)
+    assert not over and [(r.race_of, r.seed_index) for r in runs] == [(1, 1)]  # a resumed race reruns it
+    summary = race_summary(storages, spec.study.name)
+    assert summary is not None and summary["winner"]["trial"] == 1  # 72.0 against 70.0 on seed 0
+    assert (summary["winner"]["n"], summary["winner"]["ranked_on"], summary["winner"]["paired_mean"]) == (1, 1, 72.0)
+    assert summary["standings"][1]["n"] == 2 and summary["standings"][1]["finalist"]
+
+
 def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
     """--warm-start STUDY: the earlier study's COMPLETE trials enter the sampler's history, once, using no budget."""
     from autotune.search.gate import distributions

@@ -131,9 +131,22 @@ def _best(args: argparse.Namespace) -> int:
             f"{w['mean']:.2f}{sd} mph (n = {w['n']} fresh seeds; {w['selecting_value']:.2f} with the seed that "
             "selected it)"
         )
+        if w["ranked_on"] and w["ranked_on"] < w["n"]:
+            print(
+                f"  (won on the {w['ranked_on']} fresh seed(s) every finalist finished: {w['paired_mean']:.2f} mph; "
+                "a run the deadline stopped counts for no finalist)"
+            )
         for row in race["standings"][1:]:
             if row["n"]:
-                print(f"  raced: trial {row['trial']}{_at(row)}: {row['mean']:.2f} mph over {row['n']} fresh seed(s)")
+                paired = (
+                    f"; {row['paired_mean']:.2f} on the seeds the finalists share"
+                    if row["finalist"] and row["paired_mean"] is not None and row["ranked_on"] < row["n"]
+                    else ""
+                )
+                print(
+                    f"  raced: trial {row['trial']}{_at(row)}: {row['mean']:.2f} mph over {row['n']} fresh seed(s)"
+                    f"{paired}{' (finalist)' if row['finalist'] else ''}"
+                )
     elif race is not None:
         print("best configuration by mean over fresh seeds: the seed race has no finished run yet")
     for key, value in record["params"].items():

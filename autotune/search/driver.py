@@ -472,13 +472,13 @@ class Driver:
             if keys.RACE_OF not in t.user_attrs:
                 continue
             key = (int(t.user_attrs[keys.RACE_OF]), int(t.user_attrs[keys.RACE_SEED]))
-            if t.state == TrialState.FAIL and t.user_attrs.get(keys.RETRYABLE):
-                continue  # its retry (same race_of / race_seed, carried by the enqueued attrs) stands for it
-            launched.add(key)
-            if t.state == TrialState.COMPLETE:
-                results[key] = float(t.value) if t.value is not None else None
-            elif t.state in (TrialState.PRUNED, TrialState.FAIL):
-                results[key] = None
+            is_result, score = racing.run_result(
+                t.state.name, t.value, t.user_attrs.get(keys.CAUSE), bool(t.user_attrs.get(keys.RETRYABLE))
+            )
+            if is_result:
+                results[key] = score
+            if is_result or t.state in (TrialState.RUNNING, TrialState.WAITING):
+                launched.add(key)  # a failed run's retry (same race_of / race_seed) or a resumed race reruns the rest
         return list(field), results, launched
 
     def _draw_cap(self) -> float:

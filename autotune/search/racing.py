@@ -8,6 +8,11 @@ comparisons: every configuration meets the same seeds), then keeps the better ha
 all its fresh seeds so far — successive halving over seeds. The seed that selected a configuration
 is left out of its mean. A race run is an ordinary trial (its own net and official score).
 
+The winner is decided the same paired way: among the finalists (the survivors of the halving so
+far), the best mean over the seeds every finalist has a result for. A run the study's deadline
+stopped is no result (missing for every finalist, not held against the one it stopped); a run that
+failed, or that its own time limit stopped, is a result that ranks its configuration last.
+
 Pure functions of plain records, so the race's state is whatever the study holds: a resumed driver
 rebuilds it from the trials' ``race_of`` / ``race_seed`` attributes.
 """
@@ -23,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "standings", "RACE_SALT"]
+__all__ = [
+    "Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "run_result", "standings", "RACE_SALT",
+]  # fmt: skip
 
 RACE_SALT = 0x5EED_2ACE
 """Mixed into the race seeds so they never coincide with a trial's own seed."""
@@ -62,6 +69,10 @@ class RaceStanding:
     number: int
     scores: tuple[float, ...]
     """Official scores of its finished race runs, by seed index (a failed or stopped run is missing)."""
+    finalist: bool = False
+    """Survived every finished round of the halving (the winner is a finalist)."""
+    paired: tuple[float, ...] | None = None
+    """A finalist's results on the seeds every finalist has a result for (−inf: a failed run); None otherwise."""
 
     @property
     def mean(self) -> float:
@@ -70,6 +81,11 @@ class RaceStanding:
     @property
     def sd(self) -> float:
         return statistics.stdev(self.scores) if len(self.scores) > 1 else 0.0
+
+    @property
+    def paired_mean(self) -> float | None:
+        """The mean the finalists are ranked by (None: not a finalist, or no seed shared by all finalists)."""
+        return statistics.fmean(self.paired) if self.paired else None
 
 
 def config_key(config: Mapping[str, Any]) -> str:
@@ -140,10 +156,47 @@ def next_runs(
     return runs, False
 
 
-def standings(field: Sequence[int], results: Mapping[tuple[int, int], float | None]) -> list[RaceStanding]:
-    """Every entrant's fresh-seed scores, best mean first (more seeds first among equals)."""
+def run_result(
+    state: str, value: float | None, cause: str | None, retryable: bool = False
+) -> tuple[bool, float | None]:
+    """(is it a result?, score) of a race run from its trial's state name, value and recorded cause.
+
+    COMPLETE: its score. Stopped by the study's deadline (cause ``deadline…``), failed with a retry
+    queued, or unfinished: no result — its seed is not compared, and a resumed race runs it again.
+    Any other end (failed; stopped by its own time limit): a result of None, ranking it last.
+    """
+    if state == "COMPLETE":
+        return True, (float(value) if value is not None and math.isfinite(value) else None)
+    if state in ("RUNNING", "WAITING") or (cause or "").startswith("deadline") or (state == "FAIL" and retryable):
+        return False, None
+    return True, None
+
+
+def standings(
+    field: Sequence[int], results: Mapping[tuple[int, int], float | None], seeds_per_round: int = 1
+) -> list[RaceStanding]:
+    """Every entrant's fresh-seed record, the winner first.
+
+    The finalists (``_survivors``) come first, by their mean over the seeds every finalist has a
+    result for: paired, like the halving, so a seed the deadline stopped for one finalist is left
+    out for all instead of deciding the race by who finished more runs. The others follow by how
+    far they got (fresh seeds finished), then their mean. Ties keep the field's order.
+    """
+    field = list(field)
+    alive, _rnd, _done = _survivors(field, results, seeds_per_round)
+    finalists = set(alive)
+    common = sorted(s for s in {s for (_n, s) in results} if all((n, s) in results for n in alive))
     out = []
     for n in field:
         scores = tuple(v for (m, _s), v in sorted(results.items()) if m == n and v is not None and math.isfinite(v))
-        out.append(RaceStanding(n, scores))
-    return sorted(out, key=lambda st: (-len(st.scores), -st.mean))
+        paired = None
+        if n in finalists and common:
+            got = [results[(n, s)] for s in common]
+            paired = tuple(float(x) if x is not None and math.isfinite(x) else -math.inf for x in got)
+        out.append(RaceStanding(n, scores, n in finalists, paired))
+
+    def rank(st: RaceStanding) -> tuple[float, ...]:
+        paired = st.paired_mean if st.paired_mean is not None else -math.inf
+        return (-float(st.finalist), -paired, -len(st.scores), -st.mean, field.index(st.number))
+
+    return sorted(out, key=rank)

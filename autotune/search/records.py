@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import math
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -591,9 +592,11 @@ def study_resources(storages: Storages, study_name: str) -> dict[str, Any]:
 def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     """The seed race's standings (``autotune.search.racing``): each entrant's fresh-seed mean ± sd and n.
 
-    None when the study has not raced. The winner is the entrant with the most fresh seeds, then the best
-    mean: the configuration to retrain, as opposed to the best single net (the leaderboard's number). An
-    entrant raced at a kept rung's budget (``budget``, else None) was selected by that rung's score.
+    None when the study has not raced. The winner (``racing.standings``) is the finalist with the best
+    mean over the fresh seeds every finalist has a result for (``ranked_on`` of them; a run the deadline
+    stopped is left out for all): the configuration to retrain, as opposed to the best single net (the
+    leaderboard's number). An entrant raced at a kept rung's budget (``budget``, else None) was
+    selected by that rung's score.
     """
     from autotune.search import racing
 
@@ -604,16 +607,23 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     trials = study.trials
     results: dict[tuple[int, int], float | None] = {}
     for t in trials:
-        if keys.RACE_OF in t.user_attrs and t.state == "COMPLETE" and t.value is not None:
-            results[(int(t.user_attrs[keys.RACE_OF]), int(t.user_attrs[keys.RACE_SEED]))] = float(t.value)
+        if keys.RACE_OF in t.user_attrs:
+            a = t.user_attrs
+            is_result, score = racing.run_result(t.state, t.value, a.get(keys.CAUSE), bool(a.get(keys.RETRYABLE)))
+            if is_result:
+                results[(int(a[keys.RACE_OF]), int(a[keys.RACE_SEED]))] = score
+    seeds_per_round = int(_spec_table(study, "study").get("race_seeds") or 1)
     budgets = study.user_attrs.get(keys.RACE_BUDGETS) or {}
     rows = []
-    for st in racing.standings([int(n) for n in field], results):
+    for st in racing.standings([int(n) for n in field], results, seeds_per_round):
         budget = budgets.get(str(st.number))
         selecting = (
             trials[st.number].value if budget is None else dict(kept_rungs(trials[st.number].user_attrs))[budget]
         )
+        paired = st.paired_mean
         rows.append({"trial": st.number, "budget": budget, "selecting_value": selecting, "n": len(st.scores),
                      "mean": st.mean if st.scores else None, "sd": st.sd if len(st.scores) > 1 else None,
-                     "scores": list(st.scores)})  # fmt: skip
+                     "scores": list(st.scores), "finalist": st.finalist,
+                     "ranked_on": len(st.paired) if st.paired else 0,
+                     "paired_mean": paired if paired is not None and math.isfinite(paired) else None})  # fmt: skip
     return {"entrants": [int(n) for n in field], "standings": rows, "winner": rows[0] if rows[0]["n"] else None}

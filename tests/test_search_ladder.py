@@ -525,6 +525,9 @@ def test_the_race_winner_is_paired_on_the_seeds_every_finalist_has() -> None:
     results.update({(11, 2): 66.0, (11, 3): 65.0})  # both finished: all four seeds count
     assert racing.standings(field, results, 2)[0].number == 10  # 70.03 against 68.95
     assert [racing.standings(field, {}, 2)[i].number for i in range(4)] == field  # no result: the field's order
+    # round 0 still running and two entrants not yet run: they do not block the pairing of the others
+    early = {(10, 0): 64.8, (10, 1): 64.5, (11, 0): 70.4}
+    assert [st.number for st in racing.standings(field, early, 2)] == [11, 10, 12, 13]
 
 
 def test_a_race_run_the_deadline_stopped_is_run_again_and_not_held_against_it(tmp_path: Path) -> None:

@@ -72,7 +72,8 @@ class RaceStanding:
     finalist: bool = False
     """Survived every finished round of the halving (the winner is a finalist)."""
     paired: tuple[float, ...] | None = None
-    """A finalist's results on the seeds every finalist has a result for (−inf: a failed run); None otherwise."""
+    """A finalist's results on the seeds every finalist with a result has one for (−inf: a failed run); None
+    otherwise."""
 
     @property
     def mean(self) -> float:
@@ -177,20 +178,22 @@ def standings(
 ) -> list[RaceStanding]:
     """Every entrant's fresh-seed record, the winner first.
 
-    The finalists (``_survivors``) come first, by their mean over the seeds every finalist has a
-    result for: paired, like the halving, so a seed the deadline stopped for one finalist is left
-    out for all instead of deciding the race by who finished more runs. The others follow by how
-    far they got (fresh seeds finished), then their mean. Ties keep the field's order.
+    The finalists (``_survivors``) come first, by their mean over the seeds every finalist with a
+    result has one for: paired, like the halving, so a seed the deadline stopped for one finalist is
+    left out for all instead of deciding the race by who finished more runs. Finalists without a
+    result yet, then the others, follow by how far they got (fresh seeds finished), then their
+    mean. Ties keep the field's order.
     """
     field = list(field)
     alive, _rnd, _done = _survivors(field, results, seeds_per_round)
     finalists = set(alive)
-    common = sorted(s for s in {s for (_n, s) in results} if all((n, s) in results for n in alive))
+    compared = [n for n in alive if any(m == n for (m, _s) in results)]  # a finalist not yet run waits, not blocks
+    common = sorted(s for s in {s for (_n, s) in results} if all((n, s) in results for n in compared))
     out = []
     for n in field:
         scores = tuple(v for (m, _s), v in sorted(results.items()) if m == n and v is not None and math.isfinite(v))
         paired = None
-        if n in finalists and common:
+        if n in compared and common:
             got = [results[(n, s)] for s in common]
             paired = tuple(float(x) if x is not None and math.isfinite(x) else -math.inf for x in got)
         out.append(RaceStanding(n, scores, n in finalists, paired))

@@ -9,9 +9,9 @@ all its fresh seeds so far — successive halving over seeds. The seed that sele
 is left out of its mean. A race run is an ordinary trial (its own net and official score).
 
 The winner is decided the same paired way: among the finalists (the survivors of the halving so
-far), the best mean over the seeds every finalist has a result for. A run the study's deadline
-stopped is no result (missing for every finalist, not held against the one it stopped); a run that
-failed, or that its own time limit stopped, is a result that ranks its configuration last.
+far), the best mean over the seeds every finalist with a result has one for. A run the study's
+deadline stopped is no result (missing for every finalist, not held against the one it stopped); a
+run that failed, or that its own time limit stopped, is a result that ranks its configuration last.
 
 Pure functions of plain records, so the race's state is whatever the study holds: a resumed driver
 rebuilds it from the trials' ``race_of`` / ``race_seed`` attributes.

@@ -558,18 +558,32 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
     return rows
 
 
-def read_rows(journal: Path, study_name: str, t0: float) -> list[TrialRow]:
-    """The rows of a study in a journal file (empty when the study was never created)."""
+def _stored_study(journal: Path, study_name: str) -> Any:
+    """The Optuna study ``study_name`` in a journal file; None when it was never created."""
     import optuna
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
     if not journal.exists():
-        return []
+        return None
     storage = JournalStorage(JournalFileBackend(str(journal.absolute())))
     if study_name not in [s.study_name for s in storage.get_all_studies()]:
-        return []
-    return rows_from_trials(optuna.load_study(study_name=study_name, storage=storage).get_trials(deepcopy=False), t0)
+        return None
+    return optuna.load_study(study_name=study_name, storage=storage)
+
+
+def read_rows(journal: Path, study_name: str, t0: float) -> list[TrialRow]:
+    """The rows of a study in a journal file (empty when the study was never created)."""
+    study = _stored_study(journal, study_name)
+    return [] if study is None else rows_from_trials(study.get_trials(deepcopy=False), t0)
+
+
+def read_race(journal: Path, study_name: str) -> tuple[list[int], int]:
+    """The study's stored seed race: its field and fresh seeds per round (``records.race_setup``)."""
+    from autotune.search.records import race_setup
+
+    study = _stored_study(journal, study_name)
+    return race_setup({} if study is None else study.user_attrs)
 
 
 def _complete_by(rows: Iterable[TrialRow], t_s: float) -> list[TrialRow]:
@@ -609,12 +623,13 @@ def best_net(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> 
     return None if best is None else best[1]
 
 
-def chosen_trial(rows: Sequence[TrialRow], t_s: float, seeds_per_round: int = 1) -> TrialRow | None:
+def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int], int] = ((), 1)) -> TrialRow | None:
     """The trial whose configuration the arm would pick at ``t_s``: the race winner as ``autotune best`` ranks it
-    (``racing.standings`` on the race runs finished by ``t_s``; ``seeds_per_round`` is the study's ``race_seeds``),
-    else the best trial."""
+    (``racing.standings`` on the race runs finished by ``t_s``; ``race``: the study's stored field and seeds per
+    round, ``read_race``), else the best trial."""
     from autotune.search import racing
 
+    field, seeds_per_round = race
     results: dict[tuple[int, int], float | None] = {}
     for r in rows:
         if r.race_of is None or r.race_seed is None:
@@ -623,9 +638,8 @@ def chosen_trial(rows: Sequence[TrialRow], t_s: float, seeds_per_round: int = 1)
         is_result, score = racing.run_result(state, r.value, r.cause, r.retryable)
         if is_result:
             results[(r.race_of, r.race_seed)] = score
-    if not any(v is not None for v in results.values()):
+    if not field or not any(v is not None for v in results.values()):
         return best_single(rows, t_s)
-    field = sorted({r.race_of for r in rows if r.race_of is not None})
     root = racing.standings(field, results, seeds_per_round)[0].number
     by_number = {r.number: r for r in rows}
     runs = [r for r in _complete_by(rows, t_s) if r.race_of == root]
@@ -699,15 +713,15 @@ def config_key(config: Mapping[str, Any]) -> str:
 
 
 def checkpoint_picks(
-    rows: Sequence[TrialRow], minutes: Sequence[float], seeds_per_round: int = 1
+    rows: Sequence[TrialRow], minutes: Sequence[float], race: tuple[Sequence[int], int] = ((), 1)
 ) -> list[dict[str, Any]]:
     """Per checkpoint: the best single net, the best not enqueued, and the configuration picked for reseeding
-    (``seeds_per_round``: the study's ``race_seeds``)."""
+    (``race``: the study's stored seed race, ``read_race``)."""
     out = []
     for m in minutes:
         t = m * 60.0
         best, free = best_net(rows, t), best_net(rows, t, enqueued=False)
-        chosen = chosen_trial(rows, t, seeds_per_round)
+        chosen = chosen_trial(rows, t, race)
         out.append(
             {
                 "minutes": m,
@@ -1016,6 +1030,7 @@ def run_arm(arm: str, seed: int, args: argparse.Namespace, ctx: dict[str, Any]) 
         info = run_service(arm, seed, ctx["data"], run_dir, duration_s, args.workers, args.grace)
     load_end = _load()
     rows = read_rows(info["journal"], info["study"], info["t0"])
+    race = read_race(info["journal"], info["study"])
     run = {
         "study_seed": seed,
         "study": info["study"],
@@ -1025,7 +1040,7 @@ def run_arm(arm: str, seed: int, args: argparse.Namespace, ctx: dict[str, Any]) 
         "load_end": load_end,
         "errors": info["errors"],
         **run_figures(rows, info["wall_s"], args.workers, float(ctx["spec"].study.trial_timeout_s)),
-        "checkpoints": checkpoint_picks(rows, ctx["minutes"], ctx["spec"].study.race_seeds),
+        "checkpoints": checkpoint_picks(rows, ctx["minutes"], race),
     }
     for e in info["errors"]:
         print(f"  {arm} s{seed}: {e}", file=sys.stderr)

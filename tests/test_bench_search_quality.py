@@ -184,14 +184,15 @@ def test_chosen_trial_prefers_the_raced_configuration() -> None:
         row(6, 79.0, 50, race_of=0, race_seed=2),
         row(7, 80.0, 55, race_of=0, race_seed=3),
     ]
-    assert sq.chosen_trial(rows, 35).number == 1  # one race run each: 73 beats 71
-    assert sq.chosen_trial(rows, 45).number == 1  # two each: 73.25 beats 71.5
-    assert sq.chosen_trial(rows, 60).number == 1  # paired: trial 1's seeds 2 and 3 not run, so compared on 0, 1
-    assert sq.chosen_trial(rows, 60).config == {"c": 1}
-    assert sq.chosen_trial(rows, 60, seeds_per_round=4).number == 1  # one round still running: the same
-    assert sq.chosen_trial(rows, 60, seeds_per_round=1).number == 1  # trial 0 out after round 0; its runs after
+    race = ([0, 1], 1)  # the study's stored field (best first) and seeds per round
+    assert sq.chosen_trial(rows, 35, race).number == 1  # one race run each: 73 beats 71
+    assert sq.chosen_trial(rows, 45, ([0, 1], 2)).number == 1  # two each: 73.25 beats 71.5
+    assert sq.chosen_trial(rows, 60, ([0, 1], 2)).number == 1  # paired: trial 1's seeds 2, 3 not run: on 0, 1
+    assert sq.chosen_trial(rows, 60, ([0, 1], 2)).config == {"c": 1}
+    assert sq.chosen_trial(rows, 60, ([0, 1], 4)).number == 1  # one round still running: the same
+    assert sq.chosen_trial(rows, 60, race).number == 1  # trial 0 out after round 0; its later runs count for none
     rung = [row(8, 70.0, 70, race_of=1, race_seed=2, config={"c": 1, "train_iterations": 10_000})]  # at a rung
-    chosen = sq.chosen_trial(rows + rung, 80)
+    chosen = sq.chosen_trial(rows + rung, 80, race)
     assert chosen.number == 1 and chosen.config == {"c": 1, "train_iterations": 10_000}  # what the race measured
 
 
@@ -200,7 +201,7 @@ def test_chosen_trial_leaves_out_the_seeds_the_deadline_stopped() -> None:
     cause ``deadline…``); the winner is paired on round 0, not entrant 0 for having finished more runs. A race
     run its own limit stopped, or that failed, ranks its configuration last."""
     entrants = [row(n, v, 10, config={"c": n}) for n, v in enumerate((73.0, 73.5, 72.0, 71.0))]
-    race = [
+    runs = [
         row(4, 66.7, 20, race_of=0, race_seed=0), row(5, 70.4, 21, race_of=0, race_seed=1),
         row(6, 72.3, 22, race_of=1, race_seed=0), row(7, 72.5, 23, race_of=1, race_seed=1),
         row(8, 65.0, 24, race_of=2, race_seed=0), row(9, 66.0, 25, race_of=2, race_seed=1),
@@ -210,11 +211,12 @@ def test_chosen_trial_leaves_out_the_seeds_the_deadline_stopped() -> None:
     deadline = "deadline: the study's time budget ended (training at 80 %)"
     stopped = [row(14, None, 50, race_of=1, race_seed=2, cause=deadline),
                row(15, None, 50, race_of=1, race_seed=3, cause=deadline)]  # fmt: skip
-    rows = entrants + race + stopped
-    assert sq.chosen_trial(rows, 45, seeds_per_round=2).number == 1  # round 1 running
-    assert sq.chosen_trial(rows, 60, seeds_per_round=2).number == 1  # and stopped: 72.4 against 68.55 on 0, 1
+    rows = entrants + runs + stopped
+    race = ([1, 0, 2, 3], 2)  # the stored field, best first
+    assert sq.chosen_trial(rows, 45, race).number == 1  # round 1 running
+    assert sq.chosen_trial(rows, 60, race).number == 1  # and stopped: 72.4 against 68.55 on 0, 1
     limit = [dataclasses.replace(stopped[0], cause="timeout: trial wall time exceeded trial_timeout_s = 60 s")]
-    assert sq.chosen_trial(entrants + race + limit, 60, seeds_per_round=2).number == 0  # over its limit: last
+    assert sq.chosen_trial(entrants + runs + limit, 60, race).number == 0  # over its limit: last
 
 
 def test_running_best_and_the_run_figures() -> None:
@@ -341,6 +343,18 @@ def test_plain_loop_worker_records_the_contract_and_stops_at_the_trial_limit(tmp
     (limited,) = sq.read_rows(tmp_path / "j.log", "limit", t0)
     assert limited.state == "PRUNED" and limited.cause.startswith("timeout: trial wall time exceeded")
     assert sq.limit_share([limited], 1.0) > 0
+
+
+def test_read_race_gives_the_stored_field_and_seeds_per_round(tmp_path: Path) -> None:
+    """The pick ranks a race as ``autotune best`` does: with the field and race_seeds the study stored."""
+    storage = JournalStorage(JournalFileBackend(str(tmp_path / "j.log")))
+    study = optuna.create_study(study_name="raced", storage=storage, direction="maximize")
+    study.set_user_attr("race_field", [3, 1])
+    study.set_user_attr("spec", {"study": {"race_seeds": 2}})
+    optuna.create_study(study_name="plain", storage=storage, direction="maximize")
+    assert sq.read_race(tmp_path / "j.log", "raced") == ([3, 1], 2)
+    assert sq.read_race(tmp_path / "j.log", "plain") == ([], 1)  # no race (a plain loop's study)
+    assert sq.read_race(tmp_path / "none.log", "raced") == ([], 1)  # never created
 
 
 def test_calibration_draws_are_priced_by_the_prior_and_reproducible() -> None:

@@ -52,6 +52,7 @@ __all__ = [
     "format_summary",
     "rescore_trial",
     "retrain_trial",
+    "race_setup",
     "race_summary",
     "study_resources",
     "study_summary",
@@ -589,6 +590,15 @@ def study_resources(storages: Storages, study_name: str) -> dict[str, Any]:
     return _spec_table(read_study(storages, study_name), "resources")
 
 
+def race_setup(study_attrs: Mapping[str, Any]) -> tuple[list[int], int]:
+    """A study's seed race as stored: its field (entrants' trial numbers, best first; [] before the race) and
+    its fresh seeds per round (the spec's ``race_seeds``), from the study's user attrs."""
+    spec = study_attrs.get(keys.STUDY_SPEC)
+    table = spec.get("study") if isinstance(spec, dict) else None
+    seeds = table.get("race_seeds") if isinstance(table, dict) else None
+    return [int(n) for n in study_attrs.get(keys.RACE_FIELD) or []], int(seeds or 1)
+
+
 def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     """The seed race's standings (``autotune.search.racing``): each entrant's fresh-seed mean ± sd and n.
 
@@ -601,7 +611,7 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     from autotune.search import racing
 
     study = read_study(storages, study_name)
-    field = study.user_attrs.get(keys.RACE_FIELD)
+    field, seeds_per_round = race_setup(study.user_attrs)
     if not field:
         return None
     trials = study.trials
@@ -612,10 +622,9 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
             is_result, score = racing.run_result(t.state, t.value, a.get(keys.CAUSE), bool(a.get(keys.RETRYABLE)))
             if is_result:
                 results[(int(a[keys.RACE_OF]), int(a[keys.RACE_SEED]))] = score
-    seeds_per_round = int(_spec_table(study, "study").get("race_seeds") or 1)
     budgets = study.user_attrs.get(keys.RACE_BUDGETS) or {}
     rows = []
-    for st in racing.standings([int(n) for n in field], results, seeds_per_round):
+    for st in racing.standings(field, results, seeds_per_round):
         budget = budgets.get(str(st.number))
         selecting = (
             trials[st.number].value if budget is None else dict(kept_rungs(trials[st.number].user_attrs))[budget]
@@ -626,4 +635,4 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
                      "scores": list(st.scores), "finalist": st.finalist,
                      "ranked_on": len(st.paired) if st.paired else 0,
                      "paired_mean": paired if paired is not None and math.isfinite(paired) else None})  # fmt: skip
-    return {"entrants": [int(n) for n in field], "standings": rows, "winner": rows[0] if rows[0]["n"] else None}
+    return {"entrants": field, "standings": rows, "winner": rows[0] if rows[0]["n"] else None}

@@ -365,6 +365,7 @@ def train_job(job: Mapping[str, Any]) -> dict[str, Any]:
         quick_frames=200,
         timeout_s=job.get("timeout_s"),
         rungs=rungs,  # a ladder: every rung trained and scored, never pruned
+        reseed_rungs=bool(job.get("reseed", False)),  # each rung below the top from its own seed, as the study's
     )
     out = run_trial(task, lambda k, frames, score: False)
     return {
@@ -1076,6 +1077,7 @@ def calibration_draws(spec: Any, n: int, seed: int, cap_s: float) -> tuple[list[
             continue
         top = configs[len(p.budgets) - 1]
         jobs.append({"kind": "train", "config": top.to_mapping(), "seed": _seed(seed, drawn), "rungs": list(p.budgets),
+                     "reseed": spec.ladder_reseed,
                      "predicted_s": list(p.costs), "timeout_s": float(spec.study.trial_timeout_s)})  # fmt: skip
     return jobs, refused, drawn
 

@@ -330,4 +330,11 @@ def test_best_single_net_may_be_a_kept_rung(journal_study, capsys, tmp_path):
     assert settings == rung_config(top, 3000).settings and settings.train_iterations == 3000
     assert (out_dir / "net.js").read_text() == autotune.export_netjs(loaded, settings)
     code, out, err = run_cli(capsys, "best", name, "--storage", storage)
-    assert "best single net: trial 4's 3,000-iteration rung (pruned trial), 72.00 mph" in out
+    assert "best single net: trial 4's 3,000-iteration rung (pruned trial, seed 77), 72.00 mph" in out
+
+    # under [ladder] reseed a rung records the seed it trained from, and that is the one reported
+    rungs = [{"budget": 1000, "seed": 5, "score": 71.0}, {"budget": 3000, "seed": 91, "score": VALUES[1] + 2.0}]
+    study.add_trial(create_trial(state=TrialState.PRUNED, user_attrs={**attrs, "rungs": rungs},
+                                 intermediate_values={1: 71.0, 3: 72.5}))  # fmt: skip
+    found = best_net(read_study(storages, name))
+    assert found is not None and (found["trial"], found["budget"], found["seed"]) == (5, 3000, 91)

@@ -23,7 +23,7 @@ from autotune.search import keys, racing, space
 from autotune.search.cost import FEATURES, CostModel, Observation, features, plan
 from autotune.search.driver import Driver, WarmConfig, clip_params, make_pruner, make_sampler
 from autotune.search.gate import MAX_DRAWS, CostGatedSampler, distributions
-from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config
+from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config, rung_seed
 from autotune.search.objective import COMPLETE, PRUNED, TrialOutcome, TrialTask, run_trial, static_policy
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
 from autotune.search.storage import open_storage
@@ -93,6 +93,48 @@ def test_a_rung_is_a_standalone_training_exactly() -> None:
         assert score == rung["score"]
         assert dumps_net(result.convnet()) == outcome.rung_nets[rung["budget"]]
     assert outcome.value == rungs[-1]["score"] and outcome.net_js is not None
+
+
+def test_a_reseeded_rung_is_a_standalone_training_from_its_own_seed() -> None:
+    """Under [ladder] reseed every rung below the top trains from its own seed, recorded with the rung, and still
+    equals a standalone training from it; the top rung trains from the trial's seed (its value reproduces)."""
+    task = TrialTask(number=0, config=TINY.to_mapping(), seed=7, rungs=(400, 1200), reseed_rungs=True)
+    outcome = run_trial(task, lambda *a: False)
+    assert outcome.state == COMPLETE, outcome.cause
+    rungs = outcome.attrs["rungs"]
+    seeds = [r["seed"] for r in rungs]
+    assert seeds == [rung_seed(7, 400, 1200, True), 7] and seeds[0] != 7
+    assert rung_seed(7, 400, 1200, True) == rung_seed(7, 400, 1200, True) != rung_seed(8, 400, 1200, True)
+    assert rung_seed(7, 400, 1200, False) == 7 and rung_seed(7, 400, 400, True) == 7
+    for rung in rungs:
+        alone = rung_config(TINY, rung["budget"])
+        result = train(alone, rung["seed"], quick_eval=False)
+        assert evaluate_official(result.convnet(), alone).median_site == rung["score"]
+        assert dumps_net(result.convnet()) == outcome.rung_nets[rung["budget"]]
+    same = run_trial(dataclasses.replace(task, reseed_rungs=False), lambda *a: False)
+    assert [r["seed"] for r in same.attrs["rungs"]] == [7, 7]
+    assert same.rung_nets[1200] == outcome.rung_nets[1200] and same.rung_nets[400] != outcome.rung_nets[400]
+
+
+def test_reseed_is_a_ladder_key_the_driver_passes_on(tmp_path: Path) -> None:
+    """``[ladder] reseed``: off when left out (a study stored before the key resumes as it ran), stored only when
+    on, a bool or a one-line error; the driver hands it to every trial; paper.toml turns it on."""
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    assert not spec.ladder_reseed and "reseed" not in spec.to_dict()["ladder"]
+    data = spec.to_dict()
+    data["ladder"]["reseed"] = "yes"
+    with pytest.raises(SpecError, match=r"\[ladder\] reseed: must be true or false, got 'yes'; write reseed = true"):
+        parse_spec(data, source="bad.toml")
+    data["ladder"]["reseed"] = True
+    on = parse_spec(data, source="on.toml")
+    assert on.ladder_reseed and on.to_dict()["ladder"]["reseed"] is True
+    assert parse_spec(on.to_dict(), source="on.toml") == on
+    assert load_spec(CONFIGS / "paper.toml").ladder_reseed
+    driver = Driver(on, open_storage(on.study.storage, on.study.name))
+    driver.open_study()
+    driver.pool = FakePool()
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    assert driver._launch_next(0) and driver.pool.tasks[0].reseed_rungs  # noqa: SLF001
 
 
 def test_a_pruned_ladder_keeps_its_finished_rungs() -> None:
@@ -473,6 +515,9 @@ def test_resuming_with_a_changed_space_is_refused(tmp_path: Path) -> None:
     with pytest.raises(SpecError, match=r"\[space\] lanes_side: the study 'lad' was created with") as err:
         Driver(changed, open_storage(spec.study.storage, spec.study.name)).open_study()
     assert "\n" not in str(err.value)
+    reseeded = dataclasses.replace(spec, ladder_reseed=not spec.ladder_reseed)  # rungs' seeds: incomparable too
+    with pytest.raises(SpecError, match=r"\[ladder\] reseed: the study 'lad' was created with"):
+        Driver(reseeded, open_storage(spec.study.storage, spec.study.name)).open_study()
 
 
 # -- the seed race ----------------------------------------------------------------------------

@@ -118,7 +118,8 @@ def _best(args: argparse.Namespace) -> int:
     if net is not None and net["budget"] is not None:
         print(
             f"best single net: trial {net['trial']}'s {net['budget']:,}-iteration rung ({net['state'].lower()} "
-            f"trial), {net['score']:.2f} mph: a complete training at that budget, scored officially"
+            f"trial, seed {net['seed']}), {net['score']:.2f} mph: a complete training at that budget, scored "
+            "officially"
         )
         print("  (the leaderboard's number, one seed's draw; --export writes this net)")
     else:

@@ -794,7 +794,7 @@ class Driver:
             number=trial.number, config=config.to_mapping(), seed=int(seed), report_points=e.report_points,
             quick_runs=e.quick_runs, quick_frames=e.quick_frames,
             final_protocol="" if full is not None and not race else e.final_protocol,  # '': its ruleset's official
-            timeout_s=st.trial_timeout_s, rungs=rungs,
+            timeout_s=st.trial_timeout_s, rungs=rungs, reseed_rungs=self.spec.ladder_reseed,
             prune_static=self.spec.ladder_prune_static and not race,  # a race run's score counts, whatever it is
             min_weight_change=0.0 if race else self.spec.ladder_min_weight_change,
             deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,

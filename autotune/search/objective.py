@@ -66,8 +66,11 @@ class TrialTask:
     """Wall-time limit of the whole trial [s] (training + evaluations); None: none."""
     rungs: tuple[int, ...] = ()
     """Budget ladder [iterations] up to the trial's top rung (``autotune.search.ladder``): rung r is a fresh,
-    complete training at rungs[r] from ``seed``, scored officially and reported at step rungs[r] / rungs[0];
+    complete training at rungs[r] from ``rung_seed``, scored officially and reported at step rungs[r] / rungs[0];
     () = one training at the config's own length with quick scores reported along it."""
+    reseed_rungs: bool = False
+    """Train each rung below the top from a seed of its own (``ladder.rung_seed``; ``[ladder] reseed``); the top
+    rung, and every rung when False, trains from ``seed``."""
     deadline: float | None = None
     """The study's end (``time.time()`` epoch seconds): a trial still running then stops, PRUNED; None: none."""
     prune_static: bool = False
@@ -213,7 +216,7 @@ def _run_ladder(
 
     from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, official_protocol
     from autotune.learner import train
-    from autotune.search.ladder import rung_config
+    from autotune.search.ladder import rung_config, rung_seed
     from sim.policies import NUM_ACTIONS
 
     top = TrainConfig.from_mapping(task.config)
@@ -235,7 +238,8 @@ def _run_ladder(
         def progress(done: int, total: int, where: str = where) -> None:
             limits.check(f"{where}: training at {done:,} of {total:,} frames")
 
-        result = train(config, task.seed, report_points=task.report_points, quick_eval=False, progress=progress)
+        seed = rung_seed(task.seed, budget, task.rungs[-1], task.reseed_rungs)
+        result = train(config, seed, report_points=task.report_points, quick_eval=False, progress=progress)
         attrs[keys.FRAMES_SIMULATED] += result.frames
         if result.diverged:
             attrs[keys.DIVERGED] = True
@@ -255,7 +259,7 @@ def _run_ladder(
         net_json = dumps_net(convnet)
         rung_nets[budget] = net_json
         rungs.append({
-            keys.BUDGET: int(budget), keys.SCORE: score, keys.SECONDS: time.perf_counter() - t_rung,
+            keys.BUDGET: int(budget), keys.SEED: seed, keys.SCORE: score, keys.SECONDS: time.perf_counter() - t_rung,
             keys.TRAIN_SECONDS: result.train_seconds, keys.EVAL_SECONDS: time.perf_counter() - te,
             keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std, keys.FRAMES: int(result.frames),
             keys.GREEDY_CHOICES: [int(n) for n in greedy], keys.WEIGHT_CHANGE: result.weight_change,

@@ -352,8 +352,8 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
 
     A rung is a fresh, complete training at its budget, scored with the official protocol, and its net is kept
     (``net_rung_<B>.json``): it is a net one could submit, like a model checkpoint kept for its evaluation score.
-    Returns ``trial``, ``budget`` (None: the trial's value), ``score``, ``state``, ``seed`` and
-    ``official_protocol``.
+    Returns ``trial``, ``budget`` (None: the trial's value), ``score``, ``state``, ``seed`` (the one that net
+    trained from: its rung's own under ``[ladder] reseed``) and ``official_protocol``.
     """
     best: tuple[tuple[float, int, int], dict[str, Any]] | None = None
     for trial in study.trials:
@@ -365,9 +365,19 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
             rank = net_rank(score, budget, trial.number)
             if best is None or rank > best[0]:
                 best = (rank, {"trial": trial.number, "budget": budget, "score": score, "state": trial.state,
-                               "seed": attrs.get(keys.SEED),
+                               "seed": _rung_seed(attrs, budget),
                                "official_protocol": attrs.get(keys.OFFICIAL_PROTOCOL)})  # fmt: skip
     return None if best is None else best[1]
+
+
+def _rung_seed(attrs: Mapping[str, Any], budget: int | None) -> Any:
+    """The seed the trial's net at ``budget`` trained from (None: its value's): the rung's recorded seed, else
+    the trial's (rungs stored before they recorded one all trained from it)."""
+    rungs = attrs.get(keys.RUNGS) or []
+    for r in rungs if budget is not None else []:
+        if r.get(keys.BUDGET) == budget and r.get(keys.SEED) is not None:
+            return r[keys.SEED]
+    return attrs.get(keys.SEED)
 
 
 def _numbered(study: StudyRecord, number: int) -> TrialRecord:

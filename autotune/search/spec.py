@@ -269,6 +269,10 @@ class StudySpec:
     ladder_min_weight_change: float = MIN_WEIGHT_CHANGE
     """[ladder] min_weight_change [fraction of ‖θ₀‖]: prune a trial at a rung whose training moved the net's weights
     less than this from their initialisation (it does not learn), and tell samplers it is infeasible; 0 = off."""
+    ladder_reseed: bool = False
+    """[ladder] reseed: train each rung below a trial's top from a seed of its own (``ladder.rung_seed``), so
+    successive halving meets every configuration on a new seed per rung; false (the default when the key is left
+    out): every rung from the trial's seed."""
     warm_start: WarmStartSection = WarmStartSection()
     """Crowd prior / earlier study copied into the sampler's history."""
     source: str = ""
@@ -326,6 +330,8 @@ class StudySpec:
             ladder["prune_static"] = False
         if self.ladder_min_weight_change != MIN_WEIGHT_CHANGE:  # likewise
             ladder["min_weight_change"] = self.ladder_min_weight_change
+        if self.ladder_reseed:  # likewise (a study stored before the key existed trained every rung from one seed)
+            ladder["reseed"] = True
         return {
             "study": dataclasses.asdict(self.study),
             "fixed": dict(self.fixed),
@@ -413,11 +419,11 @@ def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: s
     evaluation = _parse_evaluation(data.get("evaluation", {}), source, study.ruleset, ladder="ladder" in data)
     resources = _parse_resources(data.get("resources", {}), source)
     space = tuple(_parse_dimension(name, entry, source, study.ruleset) for name, entry in data.get("space", {}).items())
-    ladder, min_top, prune_static, min_change = _parse_ladder(data.get("ladder"), source)
+    ladder, min_top, prune_static, min_change, reseed = _parse_ladder(data.get("ladder"), source)
     warm = _parse_warm_start(data.get("warm_start", {}), source)
     fixed = _parse_fixed(data.get("fixed", {}), source, study.ruleset, {d.name for d in space})
     spec = StudySpec(
-        study, fixed, space, evaluation, resources, ladder, min_top, prune_static, min_change, warm, source
+        study, fixed, space, evaluation, resources, ladder, min_top, prune_static, min_change, reseed, warm, source
     )  # fmt: skip
     _check_combination(spec)
     return spec
@@ -427,7 +433,7 @@ _SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "study": tuple(f.name for f in dataclasses.fields(StudySection)),
     "evaluation": tuple(f.name for f in dataclasses.fields(EvaluationSection)),
     "resources": tuple(f.name for f in dataclasses.fields(ResourcesSection)),
-    "ladder": ("rungs", "min_top", "prune_static", "min_weight_change"),
+    "ladder": ("rungs", "min_top", "prune_static", "min_weight_change", "reseed"),
     "warm_start": tuple(f.name for f in dataclasses.fields(WarmStartSection)),
 }
 
@@ -496,11 +502,11 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     )  # fmt: skip
 
 
-def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int, bool, float]:
-    """``(rungs, min_top, prune_static, min_weight_change)``; min_top 0 when the table leaves it out (the last
-    rung)."""
+def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int, bool, float, bool]:
+    """``(rungs, min_top, prune_static, min_weight_change, reseed)``; min_top 0 when the table leaves it out (the
+    last rung)."""
     if table is None:
-        return (), 0, True, MIN_WEIGHT_CHANGE
+        return (), 0, True, MIN_WEIGHT_CHANGE, False
     _check_keys(table, "ladder", src)
     rungs = table.get("rungs")
     what = f"{src}: [ladder] rungs"
@@ -524,7 +530,10 @@ def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int, bool, flo
         raise SpecError(f"{src}: [ladder] prune_static: must be true or false, got {prune!r}")
     change = table.get("min_weight_change", MIN_WEIGHT_CHANGE)
     change = _float(change, f"{src}: [ladder] min_weight_change (a fraction of the weights' norm; 0 = off)", 0.0, 1.0)
-    return tuple(values), (0 if min_top == values[-1] else int(min_top)), prune, change
+    reseed = table.get("reseed", False)
+    if not isinstance(reseed, bool):
+        raise SpecError(f"{src}: [ladder] reseed: must be true or false, got {reseed!r}; write reseed = true")
+    return tuple(values), (0 if min_top == values[-1] else int(min_top)), prune, change, reseed
 
 
 def _parse_warm_start(table: Mapping[str, Any], src: str) -> WarmStartSection:

@@ -640,32 +640,74 @@ def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
         d._warm_start()  # noqa: SLF001
 
 
-def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -> None:
-    """A configuration one run of which the deadline would stop is not raced (it would score nothing after
-    taking a worker); of the affordable ones the best race, and a round starts its longest run first."""
-    spec = _spec(race_configs=2, race_seeds=1).with_overrides(storage=str(tmp_path / "j.log"))
+def _race_driver(tmp_path: Path, name: str, workers: int, min_top: int = 0) -> tuple[Driver, dict[int, float]]:
+    """A driver over four finished trials (values 70, 72, 60, 65) whose race cost grows with their weights."""
+    data = _spec(race_configs=2, race_seeds=1, name=name).to_dict()
+    if min_top:
+        data["ladder"]["min_top"] = min_top
+    spec = parse_spec(data, source="race.toml").with_overrides(storage=str(tmp_path / "j.log"), workers=workers)
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
-    driver._fitted_on = len(study.trials)  # noqa: SLF001 - keep the model above (no refit on these trials)
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-3, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
     dists = distributions(spec)
-    layouts = {"fc:8:relu": 70.0, "fc:8:relu|fc:8:tanh": 72.0, "": 60.0, "fc:2:relu": 65.0}
+    layouts = {"fc:8:relu": 70.0, "fc:8:relu|fc:8:tanh": 72.0, "": 60.0, "fc:4:relu": 65.0}
     for layers, value in layouts.items():
         cfg = TINY.replace(layers=layers, train_iterations=1200)
         study.add_trial(optuna.trial.create_trial(
             params=space.encode(spec, cfg), distributions=dists, value=value,
             user_attrs={keys.CONFIG: cfg.to_mapping(), keys.SEED: 1},
         ))  # fmt: skip
+    driver._fitted_on = len(study.trials)  # noqa: SLF001 - keep the model above (no refit on these trials)
     cost = {n: driver._race_cost(t.user_attrs[keys.CONFIG]) for n, t in enumerate(study.trials)}  # noqa: SLF001
-    assert cost[1] > cost[0] > cost[3] > cost[2]
-    driver._fitted_on = len(study.trials)  # noqa: SLF001
-    timeout = spec.study.timeout_s
+    assert cost[1] > cost[0] > cost[3] > cost[2] > 0
+    return driver, cost
+
+
+def _left(driver: Driver, seconds: float) -> None:
+    timeout = driver.spec.study.timeout_s
     assert timeout is not None
-    driver._t0 = time.perf_counter() - timeout + (cost[0] + cost[1]) / 2  # noqa: SLF001
+    driver._t0 = time.perf_counter() - timeout + seconds  # noqa: SLF001
+
+
+def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -> None:
+    """A configuration one run of which (padded by RACE_MARGIN) the deadline would stop is not raced (it would
+    score nothing after taking a worker); the others join best first while the first round, spread over the
+    workers, fits the time left; a round starts its longest run first."""
+    from autotune.search.driver import RACE_MARGIN
+
+    driver, cost = _race_driver(tmp_path, "two", workers=2)
+    _left(driver, cost[0] * RACE_MARGIN * 1.01)  # trial 0's run fits, the best (trial 1, 72.0) does not
     field, _results, _launched = driver._race_state()  # noqa: SLF001
-    assert field == [0, 3]  # the best (trial 1, 72.0) cannot finish before the deadline
+    assert field == [0, 3]  # 0 and 3 side by side on the two workers
     runs, over = racing.next_runs(field, {}, set(), 1)
     assert not over and max(runs, key=lambda r: cost[r.race_of]).race_of == 0
+
+    one, cost = _race_driver(tmp_path, "one", workers=1)
+    _left(one, cost[0] * RACE_MARGIN * 1.01)
+    assert one._race_state()[0] == [0]  # noqa: SLF001 - on one worker 3 would run after 0, past the deadline
+    _left(one, (cost[0] + cost[2]) * RACE_MARGIN * 1.01)
+    assert one._race_field()[0] == [0, 2]  # noqa: SLF001 - 3 (65.0) does not fit after 0, the cheaper 2 does
+
+
+def test_an_entrant_too_long_for_the_time_left_races_at_a_lower_rung(tmp_path: Path) -> None:
+    """An entrant whose own run would not fit the time left races at the highest rung from min_top up that does
+    (stored in ``race_budgets``, so its runs train ``rung_config`` at that budget), not at all when none does."""
+    from autotune.search.driver import RACE_MARGIN
+
+    driver, cost = _race_driver(tmp_path, "low", workers=2, min_top=400)
+    assert driver.spec.race_min_budget == 400
+    _left(driver, cost[1] * 400 / 1200 * RACE_MARGIN * 1.01)  # trial 1's 400 run fits, its 1,200 one does not
+    field, _results, _launched = driver._race_state()  # noqa: SLF001
+    assert driver.study is not None
+    assert field == [1, 0] and driver.study.user_attrs[keys.RACE_BUDGETS] == {"1": 400, "0": 400}
+    driver.pool = FakePool()
+    assert driver._launch_race(0)  # noqa: SLF001
+    run = driver.pool.tasks[0]
+    top = TrainConfig.from_mapping(driver.study.trials[1].user_attrs[keys.CONFIG])
+    assert run.config == rung_config(top, 400).to_mapping() and run.rungs == (400,)
+    gated, _cost = _race_driver(tmp_path, "gated", workers=2)  # the whole ladder gated: 400 only screens
+    _left(gated, cost[2] * RACE_MARGIN * 0.5)
+    assert gated._race_field()[0] == []  # noqa: SLF001
 
 
 def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> None:

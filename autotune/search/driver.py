@@ -134,6 +134,11 @@ Progress = Callable[[StudyCounts], None]
 """Called after every change of the counts (and about once a second while trials run)."""
 
 
+RACE_MARGIN = 1.25
+"""A race run is planned where its predicted seconds × this fit the time left: the cost model's median error is
+10–35 % in the benchmark studies, and a race run the deadline stops scores nothing."""
+
+
 def trial_seed(study_seed: int, number: int) -> int:
     """A trial's training seed: independent per (study seed, trial number), stored with the trial."""
     return int(np.random.SeedSequence([int(study_seed), int(number)]).generate_state(1, np.uint32)[0] >> 1)
@@ -454,14 +459,7 @@ class Driver:
         assert self.study is not None
         field = self.study.user_attrs.get(keys.RACE_FIELD)
         if field is None:
-            left = self._time_left()
-            candidates, budgets = [], {}
-            for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
-                entry = race_entry(t, self.spec.race_min_budget) if _original(t) else None
-                if entry is not None and self._race_cost(entry[2]) <= left:
-                    candidates.append((t.number, entry[0], entry[2]))
-                    budgets[t.number] = entry[1]
-            field = [e.number for e in racing.entrants(candidates, self.spec.study.race_configs)]
+            field, budgets = self._race_field()
             raced_at = {str(n): budgets[n] for n in field if budgets[n] is not None}
             if raced_at:  # stored before the field: a driver that resumes the race finds both
                 self.study.set_user_attr(keys.RACE_BUDGETS, raced_at)
@@ -480,6 +478,60 @@ class Driver:
             if is_result or t.state in (TrialState.RUNNING, TrialState.WAITING):
                 launched.add(key)  # a failed run's retry (same race_of / race_seed) or a resumed race reruns the rest
         return list(field), results, launched
+
+    def _race_field(self) -> tuple[list[int], dict[int, int | None]]:
+        """The race's entrants (best first) and the budget each races at (None: its trial's own top).
+
+        Planned so that the first round finishes: an entrant whose run, padded by ``RACE_MARGIN``, would not fit
+        the time left races at the highest lower rung (``race_min_budget`` or above) that does, or not at all;
+        and entrants join in rank order while the round's runs, spread over the workers, fit the time left — a
+        run the deadline stops scores nothing after taking a worker (measured: a 10-minute study's only entrant
+        raced at 810k, predicted just under the 143 s left, took 147 s, and both its runs were lost)."""
+        assert self.study is not None
+        left = self._time_left()
+        candidates, budgets, costs = [], {}, {}
+        for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
+            entry = race_entry(t, self.spec.race_min_budget) if _original(t) else None
+            fit = self._race_fit(entry, t.user_attrs[keys.CONFIG], left) if entry is not None else None
+            if entry is not None and fit is not None:
+                candidates.append((t.number, entry[0], fit[1]))
+                budgets[t.number], costs[t.number] = fit[0], fit[2]
+        seeds, workers = self.spec.study.race_seeds, max(1, self.spec.resources.workers)
+        field: list[int] = []
+        load = 0.0  # worker-seconds of the first round so far
+        for e in racing.entrants(candidates, len(candidates)):
+            need = seeds * costs[e.number]
+            if field and (load + need) / workers * RACE_MARGIN > left:
+                continue  # a cheaper entrant further down may still fit
+            field.append(e.number)
+            load += need
+            if len(field) == self.spec.study.race_configs:
+                break
+        return field, budgets
+
+    def _race_fit(
+        self, entry: tuple[float, int | None, dict[str, Any]], trial_config: dict[str, Any], left: float
+    ) -> tuple[int | None, dict[str, Any], float] | None:
+        """(budget, config, predicted seconds) of the highest budget, down from the entry's own, whose one run
+        (× ``RACE_MARGIN``) fits ``left``; None when no rung at ``race_min_budget`` or above does. A lower rung's
+        config is ``rung_config`` of the trial's own (``trial_config``), as ``_raced_config`` rebuilds it."""
+        _score, budget, config = entry
+        cost = self._race_cost(config)
+        if cost * RACE_MARGIN <= left:
+            return budget, config, cost
+        try:
+            top = TrainConfig.from_mapping(trial_config)
+        except (ConfigError, TypeError, ValueError):
+            return None
+        below = TrainConfig.from_mapping(config).train_iterations
+        for b in sorted(self.spec.ladder, reverse=True):
+            if b >= below or b < self.spec.race_min_budget:
+                continue
+            lower = rung_config(top, b).to_mapping()
+            cost = self._race_cost(lower)
+            if cost * RACE_MARGIN <= left:
+                return b, lower, cost
+        return None
 
     def _draw_cap(self) -> float:
         """The gate's cap for the next draw: the study's cost cap, or the time left if less (a ladder the deadline

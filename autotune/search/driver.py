@@ -53,7 +53,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import optuna
 from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
@@ -74,6 +73,7 @@ from autotune.search.objective import (
     process_start,
 )
 from autotune.search.records import kept_rungs, net_rank
+from autotune.search.seeds import derived_seed
 from autotune.search.spec import SpecError, StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
 from sim.config import ConfigError
@@ -141,7 +141,7 @@ RACE_MARGIN = 1.25
 
 def trial_seed(study_seed: int, number: int) -> int:
     """A trial's training seed: independent per (study seed, trial number), stored with the trial."""
-    return int(np.random.SeedSequence([int(study_seed), int(number)]).generate_state(1, np.uint32)[0] >> 1)
+    return derived_seed(study_seed, number)
 
 
 def make_sampler(

@@ -32,9 +32,8 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
-import numpy as np
-
 from autotune import TrainConfig
+from autotune.search.seeds import derived_seed
 
 __all__ = ["DEFAULT_RUNGS", "START_LEARN_CAP", "RUNG_SALT", "Ladder", "rung_config", "rung_seed", "relative_schedule"]
 
@@ -120,8 +119,7 @@ def rung_seed(seed: int, budget: int, top: int, reseed: bool) -> int:
     trains from a seed derived from (seed, budget), independent of the others and the same on a retry."""
     if not reseed or budget == top:
         return int(seed)
-    ss = np.random.SeedSequence([int(seed), RUNG_SALT, int(budget)])
-    return int(ss.generate_state(1, np.uint32)[0] >> 1)
+    return derived_seed(seed, RUNG_SALT, budget)
 
 
 def cap_start(start_learn_threshold: int, experience_size: int, budget: int) -> int:

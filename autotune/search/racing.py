@@ -26,7 +26,7 @@ import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-import numpy as np
+from autotune.search.seeds import derived_seed
 
 __all__ = [
     "Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "run_result", "standings", "RACE_SALT",
@@ -38,8 +38,7 @@ RACE_SALT = 0x5EED_2ACE
 
 def race_seed(study_seed: int, index: int) -> int:
     """Fresh seed number ``index`` of a study's race (the same for every configuration)."""
-    ss = np.random.SeedSequence([int(study_seed), RACE_SALT, int(index)])
-    return int(ss.generate_state(1, np.uint32)[0] >> 1)
+    return derived_seed(study_seed, RACE_SALT, index)
 
 
 @dataclasses.dataclass(frozen=True)

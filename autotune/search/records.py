@@ -373,10 +373,10 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
 def _rung_seed(attrs: Mapping[str, Any], budget: int | None) -> Any:
     """The seed the trial's net at ``budget`` trained from (None: its value's): the rung's recorded seed, else
     the trial's (rungs stored before they recorded one all trained from it)."""
-    rungs = attrs.get(keys.RUNGS) or []
-    for r in rungs if budget is not None else []:
-        if r.get(keys.BUDGET) == budget and r.get(keys.SEED) is not None:
-            return r[keys.SEED]
+    if budget is not None:
+        for r in attrs.get(keys.RUNGS) or []:
+            if r.get(keys.BUDGET) == budget and r.get(keys.SEED) is not None:
+                return r[keys.SEED]
     return attrs.get(keys.SEED)
 
 

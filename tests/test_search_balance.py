@@ -80,21 +80,30 @@ def test_every_method_keeps_its_share_of_the_sampled_trials(gated: bool) -> None
 
 
 def test_a_forced_draw_is_modelled_on_its_own_values_trials() -> None:
-    """The conditional sampler sees only the forced value's trials (sgd's learning rate from sgd's history)."""
+    """A forced draw takes the rate from the forced value's trials alone (sgd's learning rate from sgd's
+    history) and every other parameter from the base sampler's model of all trials."""
     spec = _spec(balance=["method"], balance_min_share=0.3)
     sampler = make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0)
     balanced = sampler.base  # type: ignore[attr-defined]
     assert isinstance(balanced, BalancedSampler)
-    seen: list[set[str]] = []
-    conditional = balanced._conditional  # noqa: SLF001
-    original = conditional.sample_relative
+    own: list[tuple[set[str], set[str], set[str]]] = []
+    shared: list[tuple[set[str], set[str]]] = []
+    conditional, base = balanced._conditional, balanced.base  # noqa: SLF001
+    sample_own, sample_base = conditional.sample_relative, base.sample_relative
 
-    def spy(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
-        seen.append({t.params["method"] for t in study._get_trials(deepcopy=False)})  # noqa: SLF001
-        assert "method" not in search_space
-        return original(study, trial, search_space)
+    def spy_own(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+        out = sample_own(study, trial, search_space)
+        own.append(({t.params["method"] for t in study._get_trials(deepcopy=False)}, set(search_space), set(out)))  # noqa: SLF001
+        return out
 
-    conditional.sample_relative = spy  # type: ignore[method-assign]
+    def spy_base(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+        out = sample_base(study, trial, search_space)
+        if balanced.forced(trial.number) is not None:
+            shared.append(({t.params.get("method") for t in study._get_trials(deepcopy=False)}, set(search_space)))  # noqa: SLF001
+        return out
+
+    conditional.sample_relative = spy_own  # type: ignore[method-assign]
+    base.sample_relative = spy_base  # type: ignore[method-assign]
     study = optuna.create_study(direction="maximize", sampler=sampler)
     for _ in range(30):
         trial = study.ask()
@@ -103,7 +112,41 @@ def test_a_forced_draw_is_modelled_on_its_own_values_trials() -> None:
         if forced is not None:
             assert forced == ("method", params["method"])
         study.tell(trial, _greedy(params))
-    assert seen and all(len(s) <= 1 for s in seen)
+    assert own and all(len(methods) <= 1 and asked == {"learning_rate"} and got <= asked for methods, asked, got in own)
+    assert any(got for _m, _a, got in own)  # past its startup the conditional sampler drew the rate
+    everything = set(space.dimensions(spec)) - {"method", "learning_rate"}
+    assert shared and all(asked == everything for _m, asked in shared)
+    assert any(len(methods) > 1 for methods, _a in shared)  # the base's history holds every method's trials
+
+
+def _shared_optimum(params: dict[str, Any]) -> float:
+    """``_greedy`` plus a view that is best for every method (lanes_side 2, patches_ahead 4)."""
+    return _greedy(params) - 2.0 * (2 - params["lanes_side"]) - 2.0 * (4 - params["patches_ahead"])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_forced_draw_keeps_what_the_other_values_trials_taught(seed: int) -> None:
+    """The view is learnt mostly from adagrad's trials (the free draws pile there); forced sgd draws pick it up
+    from the base sampler, where modelling every parameter on sgd's few trials alone (``own={}``: the old
+    behaviour) finds it less often."""
+    spec = _spec(balance=["method"], balance_min_share=0.2, sampler_startup_trials=6)
+
+    def hits(own: dict[str, Any] | None) -> int:
+        sampler = make_sampler(spec, seed, lambda _p: 1.0, lambda: 10.0)
+        balanced = sampler.base  # type: ignore[attr-defined]
+        if own is not None:
+            balanced._own = own  # noqa: SLF001
+        study = optuna.create_study(direction="maximize", sampler=sampler)
+        found = 0
+        for _ in range(80):
+            trial = study.ask()
+            params = space.sample(trial, spec)
+            if trial.number >= 20 and balanced.forced(trial.number) is not None:
+                found += params["lanes_side"] == 2 and params["patches_ahead"] == 4
+            study.tell(trial, _shared_optimum(params))
+        return found
+
+    assert hits(None) > hits({})
 
 
 def test_enqueued_trials_are_not_draws() -> None:

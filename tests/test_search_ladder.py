@@ -710,6 +710,33 @@ def test_an_entrant_too_long_for_the_time_left_races_at_a_lower_rung(tmp_path: P
     assert gated._race_field()[0] == []  # noqa: SLF001
 
 
+def test_a_draw_the_deadline_overtakes_is_pruned_at_the_deadline_not_failed(tmp_path: Path) -> None:
+    """A trial whose cheapest rung no longer fits the time left when the driver prices it (the deadline came
+    nearer while it was drawn) is not trained and ends PRUNED with a 'deadline' cause, like a trial the deadline
+    stops while it trains, not FAIL; one over the study's cost cap is refused as before."""
+    driver, cost = _race_driver(tmp_path, "late", workers=1)
+    study = driver.study
+    assert study is not None
+    driver.pool = FakePool()
+    cfg = TINY.replace(layers="fc:8:relu|fc:8:tanh")
+    study.enqueue_trial(space.encode(driver.spec, cfg))
+    _left(driver, cost[1] / 1200 * 400 / 10)  # a tenth of its 400 rung
+    assert driver._launch_next(0)  # noqa: SLF001
+    late = study.trials[-1]
+    assert late.state == optuna.trial.TrialState.PRUNED and driver.pool.tasks == []
+    assert late.user_attrs[keys.CAUSE].startswith("deadline: the study's time budget ended (before training: ")
+    assert racing.run_result("PRUNED", None, late.user_attrs[keys.CAUSE]) == (False, None)
+    capped = dataclasses.replace(driver.spec.study, max_trial_cost_s=cost[1] / 1200 * 400 / 10)
+    driver.spec = dataclasses.replace(driver.spec, study=capped)
+    driver._fitted_on += 1  # noqa: SLF001 - the pruned trial above: keep the test's model, no refit
+    _left(driver, 60)
+    study.enqueue_trial(space.encode(driver.spec, cfg))
+    assert driver._launch_next(0)  # noqa: SLF001
+    over = study.trials[-1]
+    assert over.state == optuna.trial.TrialState.FAIL and driver.pool.tasks == []
+    assert over.user_attrs[keys.CAUSE].startswith("refused: its cheapest rung is predicted to take")
+
+
 def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> None:
     """An entrant is a trial's best scored net at min_top or above (here 400): a kept rung that beat its trial's
     top races at its own budget (``rung_config``: what the rung trained), a pruned trial's kept rung may enter, a

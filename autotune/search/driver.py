@@ -817,12 +817,17 @@ class Driver:
                 predicted = plan(configs, self._model(), cap, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
-                    over = (
-                        f"the study's cost cap of {cap:,.0f} s"
-                        if cap >= self.spec.study.cost_cap_s
-                        else f"the {cap:,.0f} s left before the study's deadline"
-                    )
-                    raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over {over}")
+                    if cap >= self.spec.study.cost_cap_s:
+                        raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over "
+                                       f"the study's cost cap of {cap:,.0f} s")  # fmt: skip
+                    # the deadline came nearer while the draw was made: stopped by it before training, like a
+                    # running trial it stops (PRUNED with a 'deadline' cause), not a failure
+                    trial.set_user_attr(keys.CAUSE, f"deadline: the study's time budget ended (before training: its "
+                                        f"cheapest rung is predicted to take {cheapest:,.0f} s, {max(cap, 0.0):,.0f} "
+                                        "s were left)")  # fmt: skip
+                    self.study.tell(trial, state=TrialState.PRUNED)
+                    self._notify()
+                    return True
                 config = configs[len(predicted.budgets) - 1]
                 rungs = predicted.budgets if self.spec.ladder else ()
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study

@@ -822,18 +822,15 @@ class Driver:
                                        f"the study's cost cap of {cap:,.0f} s")  # fmt: skip
                     # the deadline came nearer while the draw was made: stopped by it before training, like a
                     # running trial it stops (PRUNED with a 'deadline' cause), not a failure
-                    trial.set_user_attr(keys.CAUSE, f"deadline: the study's time budget ended (before training: its "
-                                        f"cheapest rung is predicted to take {cheapest:,.0f} s, {max(cap, 0.0):,.0f} "
-                                        "s were left)")  # fmt: skip
-                    self.study.tell(trial, state=TrialState.PRUNED)
-                    self._notify()
-                    return True
+                    raise _Refused(f"deadline: the study's time budget ended (before training: its cheapest rung "
+                                   f"is predicted to take {cheapest:,.0f} s, {max(cap, 0.0):,.0f} s were left)",
+                                   TrialState.PRUNED)  # fmt: skip
                 config = configs[len(predicted.budgets) - 1]
                 rungs = predicted.budgets if self.spec.ladder else ()
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study
             cause = str(exc) if isinstance(exc, _Refused) else f"invalid configuration: {exc}"
             trial.set_user_attr(keys.CAUSE, cause)
-            self.study.tell(trial, state=TrialState.FAIL)
+            self.study.tell(trial, state=exc.state if isinstance(exc, _Refused) else TrialState.FAIL)
             self._notify()
             return True
         assert predicted is not None
@@ -980,7 +977,12 @@ def _observations(t: FrozenTrial) -> list[Observation]:
 
 
 class _Refused(Exception):
-    """An enqueued configuration whose cheapest rung is over the cost cap (it is not trained)."""
+    """A configuration the driver does not train: its cheapest rung is over the cost cap (FAIL), or over the time
+    left once the deadline overtook its draw (PRUNED, a 'deadline' cause). The message is the trial's cause."""
+
+    def __init__(self, cause: str, state: TrialState = TrialState.FAIL) -> None:
+        super().__init__(cause)
+        self.state = state
 
 
 def _never_learned(attrs: Mapping[str, Any]) -> bool:

@@ -61,6 +61,7 @@ from autotune import TrainConfig
 from autotune.search import keys, racing, space
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, features, plan
+from autotune.search.denoise import DenoisedSampler
 from autotune.search.gate import CostGatedSampler, distributions
 from autotune.search.ladder import Ladder, rung_config
 from autotune.search.objective import (
@@ -152,7 +153,8 @@ def make_sampler(
 ) -> optuna.samplers.BaseSampler:
     """The spec's sampler, seeded, its startup count ``[study] sampler_startup_trials``; TPE multivariate with
     constant liar in parallel; behind ``balance.BalancedSampler`` when ``[study] balance`` names parameters
-    (its conditional sampler seeded ``seed + 1``, its startup split between the values). With ``price``
+    (its conditional sampler seeded ``seed + 1``, its startup split between the values); behind
+    ``denoise.DenoisedSampler`` (forest seeded ``seed``) with ``[study] denoise``. With ``price``
     it sits behind the cost gate (``gate.CostGatedSampler``), whose
     cap is ``cap()`` when given (the driver's: the study's cost cap or the time left, whichever is less)."""
     name = spec.study.sampler
@@ -166,9 +168,19 @@ def make_sampler(
         per_value = conditional_startup(spec.study.sampler_startup_trials, max(len(c) for c in choices.values()))
         conditional = _base_sampler(spec, seed + 1, name, startup=per_value)
         base = BalancedSampler(base, conditional, choices, spec.study.balance_min_share)
+    if spec.study.denoise:  # the history at a forest's estimate of each trial, not its own noisy score
+        base = DenoisedSampler(base, denoise_reference_step(spec), seed)
     if price is None:
         return base
     return CostGatedSampler(base, spec, price, cap if cap is not None else spec.study.cost_cap_s, seed)
+
+
+def denoise_reference_step(spec: StudySpec) -> int:
+    """The report step at which ``[study] denoise`` values every trial: the ladder's gated top (``min_top``, which
+    every sampled draw affords), else the last report point."""
+    if spec.ladder:
+        return Ladder(spec.ladder).steps[spec.gated_rungs - 1]
+    return max(1, spec.evaluation.report_points - 1)
 
 
 def _base_sampler(spec: StudySpec, seed: int, name: str, startup: int | None = None) -> optuna.samplers.BaseSampler:
@@ -839,6 +851,8 @@ class Driver:
         if isinstance(self.study.sampler, CostGatedSampler):
             trial.set_user_attr(keys.REFUSED_DRAWS, self.study.sampler.refused(trial.number))
             balanced = self.study.sampler.base
+            if isinstance(balanced, DenoisedSampler):
+                balanced = balanced.base
             forced = balanced.forced(trial.number) if isinstance(balanced, BalancedSampler) else None
             if forced is not None:
                 trial.set_user_attr(keys.BALANCED, f"{forced[0]}={forced[1]}")

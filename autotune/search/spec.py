@@ -4,7 +4,7 @@ Five tables, every key optional unless said otherwise::
 
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
-                  balance, balance_min_share
+                  balance, balance_min_share, denoise
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -167,6 +167,9 @@ class StudySection:
     (``autotune.search.balance``; e.g. ["method"]: TPE cannot starve a trainer method)."""
     balance_min_share: float = BALANCE_MIN_SHARE
     """Share of the sampled trials each value of a balanced parameter gets at least (≤ 1 / its choices)."""
+    denoise: bool = False
+    """Show the sampler each finished trial at a regression forest's score for its parameters at the ladder's
+    min_top, not at its own noisy score (``autotune.search.denoise``; TPE and random samplers)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -496,9 +499,12 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if share <= 0.0:
         raise where.error("balance_min_share", f"must be above 0, got {share}",
                           "e.g. balance_min_share = 0.2 (each value at least a fifth of the draws)")  # fmt: skip
+    denoise = table.get("denoise", d.denoise)
+    if not isinstance(denoise, bool):
+        raise where.error("denoise", f"must be true or false, got {denoise!r}", "write denoise = true")
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
-        startup, cap, race, race_configs, race_seeds, tuple(balance), share,
+        startup, cap, race, race_configs, race_seeds, tuple(balance), share, denoise,
     )  # fmt: skip
 
 

@@ -28,13 +28,15 @@ the study) reached 72 at 9.9 % against 14.7 %.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Container, Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 from optuna.distributions import BaseDistribution, CategoricalDistribution
 from optuna.samplers import BaseSampler
 from optuna.study import Study
 from optuna.trial import FrozenTrial, TrialState
+
+from autotune.search.history import HistoryView
 
 __all__ = ["BalancedSampler", "OWN_PARAMETERS", "conditional_startup", "forced_value"]
 
@@ -60,29 +62,16 @@ def forced_value(counts: dict[Any, int], min_share: float) -> Any | None:
     return min(short)[2] if short else None
 
 
-class _Subset:
+class _Subset(HistoryView):
     """A read-only view of ``study`` whose trials are those with ``params[name] == value`` (a sampler's history)."""
 
     def __init__(self, study: Study, name: str, value: Any) -> None:
-        self._study = study
+        super().__init__(study)
         self._name = name
         self._value = value
 
-    def _get_trials(
-        self, deepcopy: bool = True, states: Container[TrialState] | None = None, use_cache: bool = False
-    ) -> list[FrozenTrial]:
-        trials = self._study._get_trials(deepcopy=deepcopy, states=states, use_cache=use_cache)  # noqa: SLF001
+    def shown(self, trials: list[FrozenTrial]) -> list[FrozenTrial]:
         return [t for t in trials if t.params.get(self._name) == self._value]
-
-    def get_trials(self, deepcopy: bool = True, states: Container[TrialState] | None = None) -> list[FrozenTrial]:
-        return self._get_trials(deepcopy=deepcopy, states=states)
-
-    @property
-    def trials(self) -> list[FrozenTrial]:
-        return self.get_trials()
-
-    def __getattr__(self, attr: str) -> Any:  # directions, storage, ids: the real study's
-        return getattr(self._study, attr)
 
 
 def _sampled(trial: FrozenTrial) -> bool:

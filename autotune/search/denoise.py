@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Container, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -32,6 +32,8 @@ from optuna.distributions import BaseDistribution, CategoricalDistribution, Floa
 from optuna.samplers import BaseSampler
 from optuna.study import Study
 from optuna.trial import FrozenTrial, TrialState
+
+from autotune.search.history import HistoryView
 
 __all__ = ["DenoisedSampler", "encode"]
 
@@ -100,36 +102,23 @@ class _Model:
         return self._values
 
 
-class _DenoisedView:
+class _DenoisedView(HistoryView):
     """A read-only view of ``study``: its finished trials COMPLETE at the model's value, the rest as stored."""
 
     def __init__(self, study: Study, model: _Model) -> None:
-        self._study = study
+        super().__init__(study)
         self._model = model
 
-    def _get_trials(
-        self, deepcopy: bool = True, states: Container[TrialState] | None = None, use_cache: bool = False
-    ) -> list[FrozenTrial]:
-        trials = self._study._get_trials(deepcopy=deepcopy, states=None, use_cache=use_cache)  # noqa: SLF001
+    def shown(self, trials: list[FrozenTrial]) -> list[FrozenTrial]:
         values = self._model.values(trials)
-        shown = []
+        out = []
         for t in trials:
             if t.number in values:
                 t = copy.copy(t)
                 t.state = TrialState.COMPLETE
                 t.value = values[t.number]
-            shown.append(t)
-        return shown if states is None else [t for t in shown if t.state in states]
-
-    def get_trials(self, deepcopy: bool = True, states: Container[TrialState] | None = None) -> list[FrozenTrial]:
-        return self._get_trials(deepcopy=deepcopy, states=states)
-
-    @property
-    def trials(self) -> list[FrozenTrial]:
-        return self.get_trials()
-
-    def __getattr__(self, attr: str) -> Any:  # directions, storage, ids: the real study's
-        return getattr(self._study, attr)
+            out.append(t)
+        return out
 
 
 class DenoisedSampler(BaseSampler):

@@ -1,0 +1,45 @@
+"""A read-only view of a study's trial history, for sampler wrappers that show their sampler a changed history.
+
+Why: Optuna's samplers read the history through ``study._get_trials`` (and ``get_trials``/``trials``); a
+wrapper that filters it (``balance``: one value's trials) or revalues it (``denoise``: a model's estimates)
+passes a view instead of the study. Everything but the trials — directions, storage, ids — is the real
+study's, and nothing is written back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Container
+from typing import Any
+
+from optuna.study import Study
+from optuna.trial import FrozenTrial, TrialState
+
+__all__ = ["HistoryView"]
+
+
+class HistoryView:
+    """``study`` with its trials passed through ``shown`` (override it); the rest is the real study's."""
+
+    def __init__(self, study: Study) -> None:
+        self._study = study
+
+    def shown(self, trials: list[FrozenTrial]) -> list[FrozenTrial]:
+        """The history the sampler sees, from the stored one (all states)."""
+        return trials
+
+    def _get_trials(
+        self, deepcopy: bool = True, states: Container[TrialState] | None = None, use_cache: bool = False
+    ) -> list[FrozenTrial]:
+        trials = self._study._get_trials(deepcopy=deepcopy, states=None, use_cache=use_cache)  # noqa: SLF001
+        shown = self.shown(trials)
+        return shown if states is None else [t for t in shown if t.state in states]
+
+    def get_trials(self, deepcopy: bool = True, states: Container[TrialState] | None = None) -> list[FrozenTrial]:
+        return self._get_trials(deepcopy=deepcopy, states=states)
+
+    @property
+    def trials(self) -> list[FrozenTrial]:
+        return self.get_trials()
+
+    def __getattr__(self, attr: str) -> Any:  # directions, storage, ids: the real study's
+        return getattr(self._study, attr)

@@ -73,6 +73,15 @@ def test_a_short_history_is_shown_as_it_is() -> None:
     assert [(t.state, t.value) for t in shown] == [(t.state, t.value) for t in study.trials]
 
 
+def test_rungs_without_a_finite_score_do_not_count_towards_the_fit() -> None:
+    study = optuna.create_study(direction="maximize")
+    for i in range(30):
+        study.add_trial(create_trial(state=TrialState.PRUNED, params={"x": float(i % 10), "noise": 0.5},
+                                     distributions=DISTS, intermediate_values={1: float("nan")}))  # fmt: skip
+    shown = DenoisedSampler(optuna.samplers.RandomSampler(), 3, 0).shown(study)
+    assert all(t.state == TrialState.PRUNED and t.value is None for t in shown)
+
+
 def test_finished_trials_are_shown_complete_at_the_models_value_and_the_storage_keeps_its_own() -> None:
     study = _study(80, lucky=80.0)
     running = study.ask()

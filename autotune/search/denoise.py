@@ -75,12 +75,9 @@ class _Model:
         if key == self._key:
             return self._values
         self._key = key
-        rows = sum(len(t.intermediate_values) for t in done)
-        if rows < self._min_rungs:
-            self._values = {}
+        self._values = {}
+        if sum(len(t.intermediate_values) for t in done) < self._min_rungs:
             return self._values
-        from sklearn.ensemble import ExtraTreesRegressor  # imported on first use: a second's import
-
         distributions: dict[str, BaseDistribution] = {}
         for t in done:
             distributions.update(t.distributions)
@@ -92,6 +89,10 @@ class _Model:
                 if math.isfinite(score):
                     x.append([*base, math.log1p(step)])
                     y.append(score)
+        if len(y) < self._min_rungs:  # a diverged net reports no finite score
+            return self._values
+        from sklearn.ensemble import ExtraTreesRegressor  # imported on first use: a second's import
+
         forest = ExtraTreesRegressor(
             n_estimators=100, min_samples_leaf=3, max_features=0.5, random_state=self._seed, n_jobs=1,
         )  # fmt: skip

@@ -138,24 +138,27 @@ class DenoisedSampler(BaseSampler):
 
     def shown(self, study: Study) -> list[FrozenTrial]:
         """The history as the wrapped sampler sees it (for diagnostics and tests)."""
-        return _DenoisedView(study, self._model).get_trials(deepcopy=False)
+        return self._view(study).get_trials(deepcopy=False)
+
+    def _view(self, study: Study) -> Any:
+        """``study`` as the wrapped sampler sees it (typed ``Any``: it stands in for a ``Study``)."""
+        return _DenoisedView(study, self._model)
 
     def reseed_rng(self) -> None:
         self._base.reseed_rng()
 
     def infer_relative_search_space(self, study: Study, trial: FrozenTrial) -> dict[str, BaseDistribution]:
-        return self._base.infer_relative_search_space(_DenoisedView(study, self._model), trial)  # type: ignore[arg-type]
+        return self._base.infer_relative_search_space(self._view(study), trial)
 
     def sample_relative(
         self, study: Study, trial: FrozenTrial, search_space: dict[str, BaseDistribution]
     ) -> dict[str, Any]:
-        return self._base.sample_relative(_DenoisedView(study, self._model), trial, search_space)  # type: ignore[arg-type]
+        return self._base.sample_relative(self._view(study), trial, search_space)
 
     def sample_independent(
         self, study: Study, trial: FrozenTrial, param_name: str, param_distribution: BaseDistribution
     ) -> Any:
-        view: Any = _DenoisedView(study, self._model)
-        return self._base.sample_independent(view, trial, param_name, param_distribution)
+        return self._base.sample_independent(self._view(study), trial, param_name, param_distribution)
 
     def before_trial(self, study: Study, trial: FrozenTrial) -> None:
         self._base.before_trial(study, trial)

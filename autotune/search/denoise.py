@@ -76,15 +76,13 @@ class _Model:
             return self._values
         self._key = key
         self._values = {}
-        if sum(len(t.intermediate_values) for t in done) < self._min_rungs:
-            return self._values
         distributions: dict[str, BaseDistribution] = {}
         for t in done:
             distributions.update(t.distributions)
         names = sorted(distributions)
+        encoded = [encode(t.params, distributions, names) for t in done]
         x, y = [], []
-        for t in done:
-            base = encode(t.params, distributions, names)
+        for t, base in zip(done, encoded, strict=True):
             for step, score in t.intermediate_values.items():
                 if math.isfinite(score):
                     x.append([*base, math.log1p(step)])
@@ -98,7 +96,7 @@ class _Model:
         )  # fmt: skip
         forest.fit(np.asarray(x), np.asarray(y))
         at = math.log1p(self._reference_step)
-        query = np.asarray([[*encode(t.params, distributions, names), at] for t in done])
+        query = np.asarray([[*base, at] for base in encoded])
         self._values = dict(zip((t.number for t in done), forest.predict(query).tolist(), strict=True))
         return self._values
 

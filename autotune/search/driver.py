@@ -169,7 +169,7 @@ def make_sampler(
         conditional = _base_sampler(spec, seed + 1, name, startup=per_value)
         base = BalancedSampler(base, conditional, choices, spec.study.balance_min_share)
     if spec.study.denoise:  # the history at a forest's estimate of each trial, not its own noisy score
-        base = DenoisedSampler(base, denoise_reference_step(spec), seed)
+        base = DenoisedSampler(base, denoise_reference_step(spec), seed, quantile=spec.study.denoise_quantile)
     if price is None:
         return base
     return CostGatedSampler(base, spec, price, cap if cap is not None else spec.study.cost_cap_s, seed)

@@ -4,7 +4,7 @@ Five tables, every key optional unless said otherwise::
 
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
-                  balance, balance_min_share, denoise
+                  balance, balance_min_share, denoise, denoise_quantile
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -170,6 +170,9 @@ class StudySection:
     denoise: bool = False
     """Show the sampler each finished trial at a regression forest's score for its parameters at the ladder's
     min_top, not at its own noisy score (``autotune.search.denoise``; TPE and random samplers)."""
+    denoise_quantile: float | None = None
+    """With denoise: value each trial at this quantile of its neighbourhood's scores (0.9: a region's upper tail,
+    which a best single net is drawn from), not their mean (None)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -502,9 +505,18 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     denoise = table.get("denoise", d.denoise)
     if not isinstance(denoise, bool):
         raise where.error("denoise", f"must be true or false, got {denoise!r}", "write denoise = true")
+    quantile = table.get("denoise_quantile")
+    if quantile is not None:
+        quantile = _float(quantile, f"{src}: [study] denoise_quantile", 0.0, 1.0)
+        if not 0.0 < quantile < 1.0:
+            raise where.error("denoise_quantile", f"must lie strictly between 0 and 1, got {quantile}",
+                              "e.g. denoise_quantile = 0.9 (the upper tail), or leave it out (the mean)")  # fmt: skip
+        if not denoise:
+            raise where.error("denoise_quantile", "needs denoise = true (it sets how denoise values a trial)",
+                              "add denoise = true, or remove denoise_quantile")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
-        startup, cap, race, race_configs, race_seeds, tuple(balance), share, denoise,
+        startup, cap, race, race_configs, race_seeds, tuple(balance), share, denoise, quantile,
     )  # fmt: skip
 
 

@@ -198,7 +198,7 @@ def test_an_upper_quantile_prefers_the_region_that_reaches_higher_at_the_same_me
 def test_a_denoised_study_of_the_real_space_draws_and_keeps_its_states() -> None:
     """Paper's space through the whole stack (gate, denoise, balance, TPE): draws stay inside the space."""
     spec = load_spec("study_configs/paper.toml")
-    assert spec.study.denoise is True
+    assert spec.study.denoise is True and spec.study.denoise_quantile == 0.9
     study = optuna.create_study(direction="maximize", sampler=make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0))
     rng = np.random.default_rng(0)
     for i in range(60):

@@ -116,27 +116,34 @@ class _Model:
 
 def leaf_quantile(train_leaves: np.ndarray, y: np.ndarray, query_leaves: np.ndarray, q: float) -> np.ndarray:
     """Quantile ``q`` of ``y`` per query row, each training row weighted by its share of the query's leaf in each
-    tree, summed over trees (a quantile regression forest). ``*_leaves``: ``forest.apply`` (rows × trees)."""
+    tree, summed over trees (a quantile regression forest). ``*_leaves``: ``forest.apply`` (rows × trees).
+
+    The weights stay sparse (a query row holds the few hundred rows its leaves share, not every rung of the study):
+    a day's study of thousands of trials and rungs would need gigabytes as a dense query × train matrix."""
     from scipy import sparse
 
     n_train, n_trees = train_leaves.shape
     n_query = query_leaves.shape[0]
-    # one column per (tree, leaf): leaf ids are per tree, so offset each tree's ids past the last tree's
-    offsets = np.concatenate([[0], np.cumsum(np.maximum(train_leaves.max(0), query_leaves.max(0)) + 1)[:-1]])
+    # one column per (tree, leaf): node ids are per tree, so each tree's ids start past the previous tree's
+    sizes = np.maximum(train_leaves.max(0), query_leaves.max(0)) + 1
+    offsets = np.cumsum(sizes) - sizes
     cols_train = (train_leaves + offsets).ravel()
     cols_query = (query_leaves + offsets).ravel()
-    width = int(max(cols_train.max(), cols_query.max())) + 1
-    counts = np.bincount(cols_train, minlength=width).astype(float)
-    rows_train = np.repeat(np.arange(n_train), n_trees)
-    share = sparse.csr_matrix((1.0 / counts[cols_train], (rows_train, cols_train)), shape=(n_train, width))
+    counts = np.bincount(cols_train, minlength=int(sizes.sum())).astype(float)
+    share = sparse.csr_matrix((1.0 / counts[cols_train], (np.repeat(np.arange(n_train), n_trees), cols_train)),
+                              shape=(n_train, counts.size))  # fmt: skip
     member = sparse.csr_matrix((np.ones(cols_query.size), (np.repeat(np.arange(n_query), n_trees), cols_query)),
-                               shape=(n_query, width))  # fmt: skip
-    weights = np.asarray((member @ share.T).todense())  # query × train; a row sums to the trees its leaves held
-    order = np.argsort(y, kind="stable")
-    cum = np.cumsum(weights[:, order], axis=1)
-    total = cum[:, -1:]
-    idx = (cum < q * total).sum(axis=1)  # the first sorted row where the weight reaches q
-    return y[order][np.minimum(idx, n_train - 1)]  # every leaf holds training rows: no row's total is 0
+                               shape=(n_query, counts.size))  # fmt: skip
+    weights = (member @ share.T).tocsr()  # query × train
+    rank = np.empty(n_train, dtype=np.int64)
+    rank[np.argsort(y, kind="stable")] = np.arange(n_train)
+    out = np.empty(n_query)
+    for i in range(n_query):  # every leaf holds training rows, so no row is empty
+        lo, hi = weights.indptr[i], weights.indptr[i + 1]
+        by_y = np.argsort(rank[weights.indices[lo:hi]])
+        rows, cum = weights.indices[lo:hi][by_y], np.cumsum(weights.data[lo:hi][by_y])
+        out[i] = y[rows[min(int((cum < q * cum[-1]).sum()), rows.size - 1)]]  # the first row where q is reached
+    return out
 
 
 class _DenoisedView(HistoryView):

@@ -25,6 +25,7 @@ import numpy as np
 
 from autotune.search import keys
 from autotune.search.records import FINISHED_STATES, StudyRecord, TrialRecord
+from autotune.search.spec import EPSILON_TEST_SHIFTED, unshift_epsilon
 from dashboards import provenance as pv
 
 __all__ = [
@@ -275,6 +276,8 @@ def _settings(trial: TrialRecord) -> dict[str, float]:
             source[name] = trial.params[name]
     if "gamma" not in source and "one_minus_gamma" in trial.params:
         source["gamma"] = 1.0 - trial.params["one_minus_gamma"]
+    if "epsilon_test_time" not in source and EPSILON_TEST_SHIFTED in trial.params:
+        source["epsilon_test_time"] = unshift_epsilon(trial.params[EPSILON_TEST_SHIFTED])
     if _engine(trial) == "v1":
         source.pop("other_agents", None)  # v1 has no agents: not "0 agents"
     out = {}

@@ -69,16 +69,20 @@ def test_toml_values() -> None:
 def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
     spec = load_spec(PAPER)
     dims, notes = sq.plain_space(spec)
-    # the service's learning rate per input is the user's learning rate over the crowd's range
-    assert {d.name for d in dims} == {d.name for d in spec.space} - {"learning_rate_x_inputs"} | {
-        "train_iterations",
-        "learning_rate",
-    }
+    # the service's learning rate per input is the user's learning rate over the crowd's range, its shifted ε_test
+    # the user's uniform one
+    assert {d.name for d in dims} == {d.name for d in spec.space} - {
+        "learning_rate_x_inputs",
+        "epsilon_test_time_shifted",
+    } | {"train_iterations", "learning_rate", "epsilon_test_time"}
     (length,) = [d for d in dims if d.name == "train_iterations"]
     assert (length.low, length.high, length.log) == (10_000, 90_000, True)  # the ladder's range up to min_top
     (rate,) = [d for d in dims if d.name == "learning_rate"]
     assert (rate.low, rate.high, rate.log) == (1e-8, 1e-2, True)
-    assert len(notes) == 2 and "learning_rate over the crowd's range" in notes[0] and "ladder" in notes[1]
+    (eps,) = [d for d in dims if d.name == "epsilon_test_time"]
+    assert (eps.low, eps.high, eps.log) == (0.0, 0.9, False)  # paper.toml's range, uniform as a user writes it
+    assert len(notes) == 3 and "learning_rate over the crowd's range" in notes[0]
+    assert "epsilon_test_time, uniform on 0–0.9" in notes[1] and "ladder" in notes[2]
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
     layer_counts = set()
     for _ in range(40):
@@ -92,6 +96,7 @@ def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
         assert len(config.layers) == n and config.method == params["method"]
         assert config.start_learn_threshold < config.experience_size
         assert config.gamma == pytest.approx(1 - params["one_minus_gamma"])
+        assert config.epsilon_test_time == params["epsilon_test_time"]
         fraction = params["learning_steps_burnin_fraction"]
         assert config.learning_steps_burnin == round(fraction * params["train_iterations"])
     assert len(layer_counts) > 3

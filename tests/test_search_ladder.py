@@ -640,6 +640,37 @@ def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
         d._warm_start()  # noqa: SLF001
 
 
+def test_warm_start_from_a_study_in_other_coordinates_encodes_its_configs(tmp_path: Path) -> None:
+    """An earlier study that sampled ε_test directly (paper.toml before the shifted log scale): its trials enter
+    with their stored configurations encoded into this space, ε_test 0.02 as 0.025; one without a config does not."""
+    from autotune.search import space as search_space
+    from autotune.search.gate import distributions
+
+    def with_eps(name: str) -> StudySpec:
+        data = _spec(name=name, storage=str(tmp_path / "j.log")).to_dict()
+        data["space"] = {**data["space"], name_of[name]: ranges[name]}
+        return parse_spec(data)
+
+    name_of = {"old": "epsilon_test_time", "new": "epsilon_test_time_shifted"}
+    ranges = {"old": {"low": 0.0, "high": 0.9}, "new": {"low": 0.005, "high": 0.905, "log": True}}
+    old, new = with_eps("old"), with_eps("new")
+    storages = open_storage(new.study.storage, new.study.name)
+    earlier = optuna.create_study(study_name="old", storage=storages.storage, direction="maximize")
+    old_params = {"lanes_side": 1, "patches_ahead": 3, "learning_steps_burnin_fraction": 0.05, "method": "sgd",
+                  "n_layers": 1, "neurons_0": 4, "activation_0": "tanh", "neurons_1": 2, "activation_1": "relu",
+                  "epsilon_test_time": 0.02}  # fmt: skip
+    config = search_space.to_config(old, old_params)
+    for user in ({"config": config.to_mapping()}, {}):
+        earlier.add_trial(optuna.trial.create_trial(params=old_params, distributions=distributions(old),
+                                                    value=73.5, user_attrs=user))  # fmt: skip
+    driver = Driver(new.with_overrides(warm_start="old"), storages)
+    study = driver.open_study()
+    driver._warm_start()  # noqa: SLF001
+    (copied,) = study.get_trials()
+    assert copied.params["epsilon_test_time_shifted"] == 0.025 and "epsilon_test_time" not in copied.params
+    assert search_space.to_config(new, copied.params) == config and copied.value == 73.5
+
+
 def _race_driver(tmp_path: Path, name: str, workers: int, min_top: int = 0) -> tuple[Driver, dict[int, float]]:
     """A driver over four finished trials (values 70, 72, 60, 65) whose race cost grows with their weights."""
     data = _spec(race_configs=2, race_seeds=1, name=name).to_dict()

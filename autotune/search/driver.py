@@ -432,7 +432,10 @@ class Driver:
             self.warm_notes.append(f"{source}: {copied} measured trials copied into the sampler's history")
 
     def _copy_trials(self, source: str) -> int:
-        """Add ``source``'s COMPLETE trials whose params fit this space as history (no retraining)."""
+        """Add ``source``'s COMPLETE trials whose params fit this space as history (no retraining).
+
+        A trial sampled in other coordinates (a study of an earlier ``paper.toml``: ε_test before it was shifted
+        onto a log scale) enters with its stored configuration encoded into this space's, when that fits."""
         assert self.study is not None
         try:
             other = optuna.load_study(study_name=source, storage=self.storages.storage)
@@ -442,18 +445,29 @@ class Driver:
         dists = distributions(self.spec)
         copied = 0
         for t in other.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
-            if set(t.params) != set(dists) or t.value is None:
+            params = dict(t.params) if set(t.params) == set(dists) else self._encoded(t)
+            if params is None or set(params) != set(dists) or t.value is None:
                 continue
-            if clip_params(self.spec, dict(t.params))[1]:
+            if clip_params(self.spec, params)[1]:
                 continue  # outside this space: not this space's history
             user = {k: v for k, v in t.user_attrs.items() if k in (keys.CONFIG, keys.SEED, keys.RUNGS)}
             user[keys.COPIED_FROM] = f"{source}:{t.number}"
             self.study.add_trial(optuna.trial.create_trial(
-                params=dict(t.params), distributions=dists, value=t.value, user_attrs=user,
+                params=params, distributions=dists, value=t.value, user_attrs=user,
                 intermediate_values=dict(t.intermediate_values),
             ))  # fmt: skip
             copied += 1
         return copied
+
+    def _encoded(self, trial: FrozenTrial) -> dict[str, Any] | None:
+        """``trial``'s stored configuration in this space's coordinates, or None (no valid configuration stored)."""
+        config = trial.user_attrs.get(keys.CONFIG)
+        if not isinstance(config, Mapping):
+            return None
+        try:
+            return space.encode(self.spec, TrainConfig.from_mapping(config))
+        except (ConfigError, TypeError, ValueError):
+            return None
 
     # -- the seed race ----------------------------------------------------------------------
     def _race_window(self) -> bool:

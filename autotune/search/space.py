@@ -3,7 +3,8 @@
 ``sample(trial, spec)`` uses only ``trial.suggest_int / suggest_float / suggest_categorical``
 (duck typing: this module does not import optuna), so the same code serves an Optuna trial, a
 fixed-params trial or a test double. Params are in sampling coordinates — ``one_minus_gamma``
-on a log scale instead of gamma, the learning rate per input (``learning_rate_x_inputs``), ε's schedule
+on a log scale instead of gamma, the learning rate per input (``learning_rate_x_inputs``), ε_test + 0.005 on a log
+scale (``epsilon_test_time_shifted``), ε's schedule
 as fractions of the budget in a ladder study — and
 ``to_config`` turns them into the real TrainConfig; ``encode`` is the inverse, so crowd submissions
 enter a study under the same names. ``check`` is a loaded spec's last validation: its space's corners
@@ -27,6 +28,7 @@ from autotune.convnet import spec as netspec
 from autotune.search.ladder import cap_start, relative_schedule
 from autotune.search.spec import (
     _FIELD_OF,
+    EPSILON_TEST_SHIFTED,
     FRACTIONS,
     LAYOUT,
     LR_X_INPUTS,
@@ -35,6 +37,8 @@ from autotune.search.spec import (
     StudySpec,
     build_config,
     one_minus,
+    shift_epsilon,
+    unshift_epsilon,
 )  # fmt: skip
 from sim import fields
 from sim.config import ConfigError
@@ -104,14 +108,19 @@ _LR_X_INPUTS_RANGE = {"low": 1e-6, "high": 10.0, "log": True}
 
 # paper.toml's space: the same Table-1 settings on a budget ladder — the training length is the ladder's,
 # the learning rate is searched per input of the net (its good range moves far less with the view: spec.LR_X_INPUTS),
+# ε_test on a shifted log scale (spec.EPSILON_TEST_SHIFTED),
 # ε's schedule is searched as fractions of each rung's budget (crowd: burn-in 0.06 %–37.5 % of
 # trainIterations, decay end 1 %–2,500 %, 10–90 % quantiles 0.5 %–20 % and 10 %–150 %), and the trainer
 # method joins (the best v2 human net, jnorthrup-v05, trained with adagrad; convnetjs's three methods).
+_PAPER_COORDINATES = {  # Table-1 settings searched in another coordinate: (name, range)
+    "learning_rate": (LR_X_INPUTS, _LR_X_INPUTS_RANGE),
+    # ε_test + 0.005 on a log scale (spec.EPSILON_TEST_SHIFTED): the same 0–0.9, about 58 % of the draws below 0.1
+    "epsilon_test_time": (EPSILON_TEST_SHIFTED, {"low": 0.005, "high": 0.905, "log": True}),
+}
 PAPER_SPACE: dict[str, dict[str, Any]] = {
-    **{(LR_X_INPUTS if k == "learning_rate" else k): (_LR_X_INPUTS_RANGE if k == "learning_rate" else v)
-       for k, v in DEFAULT_SPACE.items()
-       if k not in ("train_iterations", "learning_steps_total", "learning_steps_burnin", "n_layers", "neurons",
-                    "activation")},
+    **dict(_PAPER_COORDINATES.get(k, (k, v)) for k, v in DEFAULT_SPACE.items()
+           if k not in ("train_iterations", "learning_steps_total", "learning_steps_burnin", "n_layers", "neurons",
+                        "activation")),
     "learning_steps_burnin_fraction": {"low": 5e-4, "high": 0.5, "log": True},
     "learning_steps_total_fraction": {"low": 0.01, "high": 5.0, "log": True},
     "method": {"choices": ["sgd", "adagrad", "adadelta"]},
@@ -179,6 +188,8 @@ def to_config(spec: StudySpec, params: Mapping[str, Any], budget: int | None = N
             continue
         if d.name == "one_minus_gamma":
             values["gamma"] = one_minus(params["one_minus_gamma"])
+        elif d.name == EPSILON_TEST_SHIFTED:
+            values["epsilon_test_time"] = unshift_epsilon(params[EPSILON_TEST_SHIFTED])
         elif d.name == LR_X_INPUTS:
             lr_x_inputs = float(params[LR_X_INPUTS])
         elif d.name in FRACTIONS:
@@ -291,6 +302,9 @@ def encode(spec: StudySpec, config: TrainConfig) -> dict[str, Any]:
             continue
         if d.name == LR_X_INPUTS:
             params[d.name] = config.learning_rate * config.net_inputs
+            continue
+        if d.name == EPSILON_TEST_SHIFTED:
+            params[d.name] = shift_epsilon(config.epsilon_test_time)
             continue
         value = getattr(config, _FIELD_OF.get(d.name, d.name))
         params[d.name] = one_minus(value) if d.name == "one_minus_gamma" else value

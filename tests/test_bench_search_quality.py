@@ -69,20 +69,16 @@ def test_toml_values() -> None:
 def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
     spec = load_spec(PAPER)
     dims, notes = sq.plain_space(spec)
-    # the service's learning rate per input is the user's learning rate over the crowd's range, its shifted ε_test
-    # the user's uniform one
-    assert {d.name for d in dims} == {d.name for d in spec.space} - {
-        "learning_rate_x_inputs",
-        "epsilon_test_time_shifted",
-    } | {"train_iterations", "learning_rate", "epsilon_test_time"}
+    # the service's learning rate per input is the user's learning rate over the crowd's range
+    assert {d.name for d in dims} == {d.name for d in spec.space} - {"learning_rate_x_inputs"} | {
+        "train_iterations",
+        "learning_rate",
+    }
     (length,) = [d for d in dims if d.name == "train_iterations"]
     assert (length.low, length.high, length.log) == (10_000, 90_000, True)  # the ladder's range up to min_top
     (rate,) = [d for d in dims if d.name == "learning_rate"]
     assert (rate.low, rate.high, rate.log) == (1e-8, 1e-2, True)
-    (eps,) = [d for d in dims if d.name == "epsilon_test_time"]
-    assert (eps.low, eps.high, eps.log) == (0.0, 0.9, False)  # paper.toml's range, uniform as a user writes it
-    assert len(notes) == 3 and "learning_rate over the crowd's range" in notes[0]
-    assert "epsilon_test_time, uniform on 0–0.9" in notes[1] and "ladder" in notes[2]
+    assert len(notes) == 2 and "learning_rate over the crowd's range" in notes[0] and "ladder" in notes[1]
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
     layer_counts = set()
     for _ in range(40):
@@ -96,10 +92,20 @@ def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
         assert len(config.layers) == n and config.method == params["method"]
         assert config.start_learn_threshold < config.experience_size
         assert config.gamma == pytest.approx(1 - params["one_minus_gamma"])
-        assert config.epsilon_test_time == params["epsilon_test_time"]
         fraction = params["learning_steps_burnin_fraction"]
         assert config.learning_steps_burnin == round(fraction * params["train_iterations"])
     assert len(layer_counts) > 3
+
+
+def test_plain_space_samples_a_shifted_epsilon_test_as_a_user_would() -> None:
+    """A spec searching ε_test + 0.005 on a log scale: the plain loop draws ε_test itself, uniform on the same range."""
+    data = load_spec(PAPER).to_dict()
+    data["space"] = {k: v for k, v in data["space"].items() if k != "epsilon_test_time"}
+    data["space"]["epsilon_test_time_shifted"] = {"low": 0.005, "high": 0.905, "log": True}
+    dims, notes = sq.plain_space(parse_spec(data))
+    (eps,) = [d for d in dims if d.name.startswith("epsilon_test")]
+    assert (eps.name, eps.low, eps.high, eps.log) == ("epsilon_test_time", 0.0, 0.9, False)
+    assert any("epsilon_test_time_shifted sampled as epsilon_test_time, uniform on 0–0.9" in n for n in notes)
 
 
 def test_plain_space_leaves_out_service_only_names_and_keeps_a_train_length() -> None:

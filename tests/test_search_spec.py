@@ -64,10 +64,11 @@ def test_paper_toml_is_the_paper_space() -> None:
     assert spec.fixed == ()
     # every Table-1 setting but the ladder's (training length, ε's schedule as fractions of it), and the trainer method
     ladder = {"train_iterations", "learning_steps_total", "learning_steps_burnin"}
-    # and the learning rate per input of the net, ε_test shifted onto a log scale
-    assert {d.name for d in spec.space} == (set(TABLE1) - ladder - {"learning_rate", "epsilon_test_time"}) | set(
-        FRACTIONS
-    ) | {"method", "learning_rate_x_inputs", "epsilon_test_time_shifted"}
+    # and the learning rate per input of the net
+    assert {d.name for d in spec.space} == (set(TABLE1) - ladder - {"learning_rate"}) | set(FRACTIONS) | {
+        "method",
+        "learning_rate_x_inputs",
+    }
     assert set(TABLE1) <= set(PARAMS)
     assert spec.ladder == (10_000, 30_000, 90_000, 270_000, 810_000) and spec.study.pruner == "sha"
     assert spec.ladder_min_top == 90_000 and spec.gated_rungs == 3  # every sampled draw affords 90k

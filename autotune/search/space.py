@@ -3,8 +3,8 @@
 ``sample(trial, spec)`` uses only ``trial.suggest_int / suggest_float / suggest_categorical``
 (duck typing: this module does not import optuna), so the same code serves an Optuna trial, a
 fixed-params trial or a test double. Params are in sampling coordinates — ``one_minus_gamma``
-on a log scale instead of gamma, the learning rate per input (``learning_rate_x_inputs``), ε_test + 0.005 on a log
-scale (``epsilon_test_time_shifted``), ε's schedule
+on a log scale instead of gamma, the learning rate per input (``learning_rate_x_inputs``), optionally ε_test + 0.005
+on a log scale (``epsilon_test_time_shifted``), ε's schedule
 as fractions of the budget in a ladder study — and
 ``to_config`` turns them into the real TrainConfig; ``encode`` is the inverse, so crowd submissions
 enter a study under the same names. ``check`` is a loaded spec's last validation: its space's corners
@@ -108,14 +108,11 @@ _LR_X_INPUTS_RANGE = {"low": 1e-6, "high": 10.0, "log": True}
 
 # paper.toml's space: the same Table-1 settings on a budget ladder — the training length is the ladder's,
 # the learning rate is searched per input of the net (its good range moves far less with the view: spec.LR_X_INPUTS),
-# ε_test on a shifted log scale (spec.EPSILON_TEST_SHIFTED),
 # ε's schedule is searched as fractions of each rung's budget (crowd: burn-in 0.06 %–37.5 % of
 # trainIterations, decay end 1 %–2,500 %, 10–90 % quantiles 0.5 %–20 % and 10 %–150 %), and the trainer
 # method joins (the best v2 human net, jnorthrup-v05, trained with adagrad; convnetjs's three methods).
 _PAPER_COORDINATES = {  # Table-1 settings searched in another coordinate: (name, range)
     "learning_rate": (LR_X_INPUTS, _LR_X_INPUTS_RANGE),
-    # ε_test + 0.005 on a log scale (spec.EPSILON_TEST_SHIFTED): the same 0–0.9, about 58 % of the draws below 0.1
-    "epsilon_test_time": (EPSILON_TEST_SHIFTED, {"low": 0.005, "high": 0.905, "log": True}),
 }
 PAPER_SPACE: dict[str, dict[str, Any]] = {
     **dict(_PAPER_COORDINATES.get(k, (k, v)) for k, v in DEFAULT_SPACE.items()

@@ -87,8 +87,6 @@ FALLBACK_ITERATIONS = {"low": 5_000, "high": 1_000_000, "log": True}
 FRACTION = "_fraction"  # [space] names <setting>_fraction: that setting as a fraction of train_iterations
 LR_X_INPUTS = "learning_rate_x_inputs"  # the service's learning rate per input; the plain loop samples the rate
 PLAIN_LEARNING_RATE = {"low": 1e-8, "high": 1e-2, "log": True}  # itself, over the crowd's range (the issue's loop)
-EPSILON_SHIFTED = "epsilon_test_time_shifted"  # the service's ε_test + 0.005 on a log scale; the plain loop samples
-EPSILON_SHIFT = 0.005  # ε_test itself, uniformly over the same range (as a user's loop writes it)
 FINISHED = ("COMPLETE", "PRUNED", "FAIL")
 LIMIT_CAUSE = "timeout"  # causes of trials stopped by a wall-time limit start with this
 PRUNE_CAUSES = (  # (how the objective's cause starts, its label in the figures), first match wins
@@ -162,7 +160,7 @@ def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
     length (a ladder study's: searched over the ladder's range up to ``min_top``), and notes on what was left out
     or added."""
     from autotune import TrainConfig
-    from autotune.search.spec import Dimension
+    from autotune.search.spec import EPSILON_TEST_SHIFTED, Dimension, unshift_epsilon
 
     settings = {f.name for f in dataclasses.fields(TrainConfig)}
     dims: list[Dimension] = []
@@ -171,10 +169,11 @@ def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
         base = d.name.removesuffix(FRACTION)
         if base in settings or d.name in LAYOUT or d.name == "one_minus_gamma":
             dims.append(d)
-        elif d.name == EPSILON_SHIFTED and d.low is not None and d.high is not None:
-            lo, hi = round(d.low - EPSILON_SHIFT, 12), round(d.high - EPSILON_SHIFT, 12)
+        elif d.name == EPSILON_TEST_SHIFTED and d.low is not None and d.high is not None:
+            # a user's loop draws ε_test itself, uniformly over the same range
+            lo, hi = unshift_epsilon(d.low), unshift_epsilon(d.high)
             dims.append(Dimension("epsilon_test_time", "float", lo, hi))
-            notes.append(f"plain loop: [space] {EPSILON_SHIFTED} sampled as epsilon_test_time, uniform on "
+            notes.append(f"plain loop: [space] {EPSILON_TEST_SHIFTED} sampled as epsilon_test_time, uniform on "
                          f"{lo:g}–{hi:g}")  # fmt: skip
         elif d.name == LR_X_INPUTS and "learning_rate" not in spec.fixed_values:
             dims.append(Dimension("learning_rate", "float", **PLAIN_LEARNING_RATE))  # type: ignore[arg-type]

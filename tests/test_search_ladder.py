@@ -641,8 +641,8 @@ def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
 
 
 def test_warm_start_from_a_study_in_other_coordinates_encodes_its_configs(tmp_path: Path) -> None:
-    """An earlier study that sampled ε_test directly (paper.toml before the shifted log scale): its trials enter
-    with their stored configurations encoded into this space, ε_test 0.02 as 0.025; one without a config does not."""
+    """An earlier study that sampled ε_test directly, this one ε_test + 0.005 on a log scale: its trials enter with
+    their stored configurations encoded into this space, ε_test 0.02 as 0.025; one without a config does not."""
     from autotune.search import space as search_space
     from autotune.search.gate import distributions
 

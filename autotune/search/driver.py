@@ -434,8 +434,9 @@ class Driver:
     def _copy_trials(self, source: str) -> int:
         """Add ``source``'s COMPLETE trials whose params fit this space as history (no retraining).
 
-        A trial sampled in other coordinates (a study of an earlier ``paper.toml``: ε_test before it was shifted
-        onto a log scale) enters with its stored configuration encoded into this space's, when that fits."""
+        A trial sampled in other coordinates (say ``epsilon_test_time`` where this space searches
+        ``epsilon_test_time_shifted``, or ``learning_rate`` where it searches the rate per input) enters with its
+        stored configuration encoded into this space's, when that fits."""
         assert self.study is not None
         try:
             other = optuna.load_study(study_name=source, storage=self.storages.storage)

@@ -87,6 +87,7 @@ FALLBACK_ITERATIONS = {"low": 5_000, "high": 1_000_000, "log": True}
 FRACTION = "_fraction"  # [space] names <setting>_fraction: that setting as a fraction of train_iterations
 LR_X_INPUTS = "learning_rate_x_inputs"  # the service's learning rate per input; the plain loop samples the rate
 PLAIN_LEARNING_RATE = {"low": 1e-8, "high": 1e-2, "log": True}  # itself, over the crowd's range (the loop)
+PLAIN_EPSILON_TEST = {"low": 0.0, "high": 0.9}  # ε_test where the spec chooses it per net: paper.toml's old range
 FINISHED = ("COMPLETE", "PRUNED", "FAIL")
 LIMIT_CAUSE = "timeout"  # causes of trials stopped by a wall-time limit start with this
 PRUNE_CAUSES = (  # (how the objective's cause starts, its label in the figures), first match wins
@@ -182,6 +183,13 @@ def plain_space(spec: Any) -> tuple[tuple[Dimension, ...], tuple[str, ...]]:
         else:
             notes.append(f"plain loop: [space] {d.name} is not a training setting; not sampled")
     names = {d.name for d in dims}
+    grid = tuple(getattr(spec, "ladder_epsilon_grid", ()) or ())
+    if grid and "epsilon_test_time" not in names and "epsilon_test_time" not in spec.fixed_values:
+        # the service chooses ε_test per net from the grid; a user's loop draws it, over the paper's range
+        lo, hi = PLAIN_EPSILON_TEST["low"], PLAIN_EPSILON_TEST["high"]
+        dims.append(Dimension("epsilon_test_time", "float", lo, hi))
+        notes.append(f"plain loop: ε_test (the service's [ladder] epsilon_test_grid) sampled as epsilon_test_time, "
+                     f"uniform on {lo:g}–{hi:g}")  # fmt: skip
     if "train_iterations" not in names and "train_iterations" not in spec.fixed_values:
         ladder = tuple(getattr(spec, "ladder", ()) or ())  # a spec-like without a ladder too
         # up to min_top (every sampled trial's top or above): paper.toml's 10k–90k, the "10k–100k" loop
@@ -372,6 +380,8 @@ def train_job(job: Mapping[str, Any]) -> dict[str, Any]:
         timeout_s=job.get("timeout_s"),
         rungs=rungs,  # a ladder: every rung trained and scored, never pruned
         reseed_rungs=bool(job.get("reseed", False)),  # each rung below the top from its own seed, as the study's
+        epsilon_test_grid=tuple(float(e) for e in job.get("epsilon_test_grid", ())),  # ε_test per net, as the study's
+        epsilon_test_screen_runs=int(job.get("epsilon_test_screen_runs", 100)),
     )
     out = run_trial(task, lambda k, frames, score: False)
     return {
@@ -1065,6 +1075,11 @@ def calibration_draws(spec: Any, n: int, seed: int, cap_s: float) -> tuple[list[
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
     model = CostModel.prior()
+    if spec.ladder_epsilon_grid:  # each rung screens its net at the grid, as the study's trials do
+        from sim.protocols import OFFICIAL, PROTOCOLS
+
+        share = spec.ladder_epsilon_screen_runs / PROTOCOLS[OFFICIAL[spec.ruleset]].runs
+        model = model.screening(spec.ladder_epsilon_grid, share)
     jobs: list[dict[str, Any]] = []
     refused: list[str] = []
     drawn = 0
@@ -1083,7 +1098,8 @@ def calibration_draws(spec: Any, n: int, seed: int, cap_s: float) -> tuple[list[
             continue
         top = configs[len(p.budgets) - 1]
         jobs.append({"kind": "train", "config": top.to_mapping(), "seed": _seed(seed, drawn), "rungs": list(p.budgets),
-                     "reseed": spec.ladder_reseed,
+                     "reseed": spec.ladder_reseed, "epsilon_test_grid": list(spec.ladder_epsilon_grid),
+                     "epsilon_test_screen_runs": spec.ladder_epsilon_screen_runs,
                      "predicted_s": list(p.costs), "timeout_s": float(spec.study.trial_timeout_s)})  # fmt: skip
     return jobs, refused, drawn
 

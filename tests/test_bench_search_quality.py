@@ -101,11 +101,23 @@ def test_plain_space_samples_a_shifted_epsilon_test_as_a_user_would() -> None:
     """A spec searching ε_test + 0.005 on a log scale: the plain loop draws ε_test itself, uniform on the same range."""
     data = load_spec(PAPER).to_dict()
     data["space"] = {k: v for k, v in data["space"].items() if k != "epsilon_test_time"}
+    data["ladder"] = {k: v for k, v in data["ladder"].items() if not k.startswith("epsilon_test")}
     data["space"]["epsilon_test_time_shifted"] = {"low": 0.005, "high": 0.905, "log": True}
     dims, notes = sq.plain_space(parse_spec(data))
     (eps,) = [d for d in dims if d.name.startswith("epsilon_test")]
     assert (eps.name, eps.low, eps.high, eps.log) == ("epsilon_test_time", 0.0, 0.9, False)
     assert any("epsilon_test_time_shifted sampled as epsilon_test_time, uniform on 0–0.9" in n for n in notes)
+
+
+def test_plain_space_draws_epsilon_test_where_the_service_chooses_it_per_net() -> None:
+    """paper.toml chooses ε_test per trained net ([ladder] epsilon_test_grid): the plain loop, a user's own, draws it
+    as a setting, uniformly over the paper's 0–0.9, and says so."""
+    spec = load_spec(PAPER)
+    assert spec.ladder_epsilon_grid and "epsilon_test_time" not in spec.dimensions
+    dims, notes = sq.plain_space(spec)
+    (eps,) = [d for d in dims if d.name.startswith("epsilon_test")]
+    assert (eps.name, eps.low, eps.high, eps.log) == ("epsilon_test_time", 0.0, 0.9, False)
+    assert any("epsilon_test_grid) sampled as epsilon_test_time, uniform on 0–0.9" in n for n in notes)
 
 
 def test_plain_space_leaves_out_service_only_names_and_keeps_a_train_length() -> None:

@@ -337,6 +337,7 @@ def _shifted_paper() -> StudySpec:
     """paper.toml with ε_test searched as epsilon_test_time_shifted over the same 0–0.9."""
     data = load_spec(CONFIGS / "paper.toml").to_dict()
     data["space"] = {k: v for k, v in data["space"].items() if k != "epsilon_test_time"}
+    data["ladder"] = {k: v for k, v in data["ladder"].items() if not k.startswith("epsilon_test")}  # ε_test searched
     data["space"]["epsilon_test_time_shifted"] = {"low": 0.005, "high": 0.905, "log": True}
     return parse_spec(data)
 

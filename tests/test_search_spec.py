@@ -64,8 +64,11 @@ def test_paper_toml_is_the_paper_space() -> None:
     assert spec.fixed == ()
     # every Table-1 setting but the ladder's (training length, ε's schedule as fractions of it), and the trainer method
     ladder = {"train_iterations", "learning_steps_total", "learning_steps_burnin"}
-    # and the learning rate per input of the net
-    assert {d.name for d in spec.space} == (set(TABLE1) - ladder - {"learning_rate"}) | set(FRACTIONS) | {
+    # and the learning rate per input of the net; ε_test is chosen per trained net from the ladder's grid
+    assert spec.ladder_epsilon_grid == (0.0, 0.05, 0.2, 0.45, 0.7)
+    assert {d.name for d in spec.space} == (set(TABLE1) - ladder - {"learning_rate", "epsilon_test_time"}) | set(
+        FRACTIONS
+    ) | {
         "method",
         "learning_rate_x_inputs",
     }

@@ -119,7 +119,7 @@ def _best(args: argparse.Namespace) -> int:
         print(
             f"best single net: trial {net['trial']}'s {net['budget']:,}-iteration rung ({net['state'].lower()} "
             f"trial, seed {net['seed']}), {net['score']:.2f} mph: a complete training at that budget, scored "
-            "officially"
+            f"officially{_epsilon(net)}"
         )
         print("  (the leaderboard's number, one seed's draw; --export writes this net)")
     else:
@@ -158,6 +158,12 @@ def _best(args: argparse.Namespace) -> int:
     for name, path in paths.items():
         print(f"wrote {path}" + (" (paste into the DeepTraffic page)" if name == "net.js" else ""))
     return 0
+
+
+def _epsilon(net: dict[str, Any]) -> str:
+    """' at ε_test E' for a net scored at a known ε_test, else ''."""
+    e = net.get("epsilon_test_time")
+    return f" at ε_test {e:g}" if isinstance(e, (int, float)) else ""
 
 
 def _at(standing: dict[str, Any]) -> str:

@@ -41,6 +41,7 @@ def evaluate_official(
     gauss_cache: int = 0,
     progress: Callable[[int, int], None] | None = None,
     greedy_actions: np.ndarray | None = None,
+    runs: int | None = None,
 ) -> EvalResult:
     """Exact official-protocol evaluation of a trained net (after the JSON text round trip).
 
@@ -53,7 +54,8 @@ def evaluate_official(
     config's (v2). ``gauss_cache``: convnetjs's Gaussian cache flag before the brain build (0 in a
     fresh process; the learner_scores.json harness evaluated in the training's process, so there it
     is the training's final flag). ``greedy_actions`` (5 int64s), when given, receives how often each action
-    was the net's greedy choice (``BrainPolicy.greedy_actions``; the scores do not depend on it).
+    was the net's greedy choice (``BrainPolicy.greedy_actions``; the scores do not depend on it). ``runs`` stops
+    the protocol after its first ``runs`` runs (the same runs as the whole protocol's first ones).
     """
     net = loads_net(dumps_net(convnet))  # train.js saves with toJSON, evaluate.js loads with fromJSON
     engine = config.engine_config
@@ -70,4 +72,5 @@ def evaluate_official(
         gauss_cache=gauss_cache,
         progress=progress,
         greedy_actions=greedy_actions,
+        runs=runs,
     )

@@ -10,7 +10,8 @@ non-negative work terms whose coefficients are seconds per unit of work:
 * the official evaluation: a fixed part, one forward pass per decision of every red car
   (∝ (1 + other_agents) and ∝ params × (1 + other_agents)), and per greedy decision the input ``Vol``
   convnetjs allocates, whose Gaussian fill the exact evaluation replays draw for draw
-  (∝ (1 + other_agents) × (1 − epsilon_test_time) × inputs: a wide view costs more than a wide net).
+  (∝ (1 + other_agents) × (1 − epsilon_test_time) × inputs: a wide view costs more than a wide net);
+  with ``[ladder] epsilon_test_grid`` each grid value's screen adds its share of those runs (and one set-up).
 
 ``CostModel.prior()`` holds coefficients measured on the 2-core reference machine (see
 ``PRIOR``); ``fit`` refits them by non-negative least squares on *relative* errors over the study's
@@ -66,16 +67,24 @@ _PRIOR_WEIGHT = 4.0
 """The prior counts as this many observations (spread over its anchor configurations)."""
 
 
-def features(config: TrainConfig, *, evaluated: bool = True) -> np.ndarray:
-    """The work terms of one rung of ``config`` (at its ``train_iterations``), see ``FEATURES``."""
+def features(
+    config: TrainConfig, *, evaluated: bool = True, screen: Sequence[float] = (), screen_share: float = 0.0
+) -> np.ndarray:
+    """The work terms of one rung of ``config`` (at its ``train_iterations``), see ``FEATURES``.
+
+    ``screen``: the ε_test values its net was screened at before the official evaluation (``[ladder]
+    epsilon_test_grid``), each on ``screen_share`` of the protocol's runs: one more set-up each, and that share of
+    the runs' cars, forward passes and (at its ε) input fills."""
     b = float(config.train_iterations)
     cars = 1.0 + config.other_agents
     p = float(config.param_count)
     learning = max(0.0, b - config.start_learn_threshold)
     ev = 1.0 if evaluated else 0.0
-    greedy = 1.0 - config.epsilon_test_time
+    k = len(screen) if evaluated else 0
+    runs = ev + k * screen_share  # official evaluations' worth of runs
+    greedy = ev * (1.0 - config.epsilon_test_time) + (screen_share * sum(1.0 - e for e in screen) if k else 0.0)
     return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,
-                     ev, ev * cars, ev * p * cars, ev * cars * greedy * config.net_inputs])  # fmt: skip
+                     ev + k, runs * cars, runs * p * cars, cars * greedy * config.net_inputs])  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,6 +102,11 @@ class CostModel:
     coef: tuple[float, ...] = tuple(PRIOR.tolist())
     n_observations: int = 0
     """Finished rungs the coefficients were fitted to (0: the prior alone)."""
+    screen: tuple[float, ...] = ()
+    """The study's ``[ladder] epsilon_test_grid``: every predicted rung screens its net at these ε_test values
+    (unless ``predict(..., screened=False)``: a race run is scored at its configuration's own ε_test)."""
+    screen_share: float = 0.0
+    """The share of the official protocol's runs each screen evaluates."""
 
     @classmethod
     def prior(cls) -> CostModel:
@@ -101,9 +115,16 @@ class CostModel:
     def predict_features(self, x: np.ndarray) -> float:
         return float(np.dot(np.asarray(self.coef), x))
 
-    def predict(self, config: TrainConfig, *, evaluated: bool = True) -> float:
-        """Predicted wall seconds of training ``config`` at its ``train_iterations`` (+ its official score)."""
-        return self.predict_features(features(config, evaluated=evaluated))
+    def predict(self, config: TrainConfig, *, evaluated: bool = True, screened: bool = True) -> float:
+        """Predicted wall seconds of training ``config`` at its ``train_iterations`` (+ its official score, and the
+        ε_test screens of ``screen`` unless ``screened`` is False)."""
+        screen = self.screen if screened else ()
+        return self.predict_features(features(config, evaluated=evaluated, screen=screen,
+                                              screen_share=self.screen_share))  # fmt: skip
+
+    def screening(self, grid: Sequence[float], share: float) -> CostModel:
+        """This model predicting rungs whose nets are screened at ``grid`` on ``share`` of the runs."""
+        return dataclasses.replace(self, screen=tuple(float(e) for e in grid), screen_share=float(share))
 
     def fit(self, observations: Iterable[Observation]) -> CostModel:
         """Refit to finished rungs (relative least squares, non-negative), the prior as pseudo-observations."""
@@ -111,7 +132,7 @@ class CostModel:
 
         obs = [o for o in observations if o.seconds > 0 and math.isfinite(o.seconds)]
         if not obs:
-            return CostModel(tuple(PRIOR.tolist()), 0)
+            return CostModel(tuple(PRIOR.tolist()), 0, self.screen, self.screen_share)
         prior = np.asarray(PRIOR)
         rows: list[np.ndarray] = []
         target: list[float] = []
@@ -127,7 +148,7 @@ class CostModel:
             rows.append(e)
             target.append(w)
         coef, _ = nnls(np.vstack(rows), np.asarray(target))
-        return CostModel(tuple(float(c) for c in coef), len(obs))
+        return CostModel(tuple(float(c) for c in coef), len(obs), self.screen, self.screen_share)
 
     def ladder_costs(self, configs: Sequence[TrainConfig]) -> list[float]:
         """Predicted seconds of each rung (one config per rung)."""

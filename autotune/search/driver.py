@@ -57,13 +57,13 @@ import optuna
 from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
-from autotune import TrainConfig
+from autotune import OFFICIAL_PROTOCOL, TrainConfig
 from autotune.search import keys, racing, space
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, features, plan
 from autotune.search.denoise import DenoisedSampler
 from autotune.search.gate import CostGatedSampler, distributions
-from autotune.search.ladder import Ladder, rung_config
+from autotune.search.ladder import Ladder, trained_rung_config
 from autotune.search.objective import (
     COMPLETE,
     FAILED,
@@ -281,7 +281,7 @@ class Driver:
     ) -> None:
         self.spec = spec
         self.warm_configs = warm_configs
-        self.cost_model = CostModel.prior()
+        self.cost_model = self._prior_model()
         self._fitted_on = -1
         self._observed: dict[int, list[Observation]] = {}
         self._race_over = False
@@ -395,9 +395,16 @@ class Driver:
             if t.number not in self._observed:
                 self._observed[t.number] = _observations(t)
             obs.extend(self._observed[t.number])
-        self.cost_model = CostModel.prior().fit(obs)
+        self.cost_model = self._prior_model().fit(obs)
         self._fitted_on = len(trials)
         return self.cost_model
+
+    def _prior_model(self) -> CostModel:
+        """The prior cost model, pricing each sampled rung's ε_test screens where the spec has a grid."""
+        model = CostModel.prior()
+        if self.spec.ladder_epsilon_grid:
+            model = model.screening(self.spec.ladder_epsilon_grid, _screen_share(self.spec))
+        return model
 
     # -- warm start ------------------------------------------------------------------------
     def _warm_start(self) -> None:
@@ -519,7 +526,7 @@ class Driver:
         candidates, budgets, costs = [], {}, {}
         for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
             entry = race_entry(t, self.spec.race_min_budget) if _original(t) else None
-            fit = self._race_fit(entry, t.user_attrs[keys.CONFIG], left) if entry is not None else None
+            fit = self._race_fit(entry, t.user_attrs, left) if entry is not None else None
             if entry is not None and fit is not None:
                 candidates.append((t.number, entry[0], fit[1]))
                 budgets[t.number], costs[t.number] = fit[0], fit[2]
@@ -537,24 +544,25 @@ class Driver:
         return field, budgets
 
     def _race_fit(
-        self, entry: tuple[float, int | None, dict[str, Any]], trial_config: dict[str, Any], left: float
+        self, entry: tuple[float, int | None, dict[str, Any]], trial_attrs: Mapping[str, Any], left: float
     ) -> tuple[int | None, dict[str, Any], float] | None:
         """(budget, config, predicted seconds) of the highest budget, down from the entry's own, whose one run
         (× ``RACE_MARGIN``) fits ``left``; None when no rung at ``race_min_budget`` or above does. A lower rung's
-        config is ``rung_config`` of the trial's own (``trial_config``), as ``_raced_config`` rebuilds it."""
+        config is what that rung of the trial (``trial_attrs``) trained (``trained_rung_config``), as
+        ``_raced_config`` rebuilds it."""
         _score, budget, config = entry
         cost = self._race_cost(config)
         if cost * RACE_MARGIN <= left:
             return budget, config, cost
         try:
-            top = TrainConfig.from_mapping(trial_config)
+            top = TrainConfig.from_mapping(trial_attrs[keys.CONFIG])
         except (ConfigError, TypeError, ValueError):
             return None
         below = TrainConfig.from_mapping(config).train_iterations
         for b in sorted(self.spec.ladder, reverse=True):
             if b >= below or b < self.spec.race_min_budget:
                 continue
-            lower = rung_config(top, b).to_mapping()
+            lower = trained_rung_config(top, b, trial_attrs.get(keys.RUNGS)).to_mapping()
             cost = self._race_cost(lower)
             if cost * RACE_MARGIN <= left:
                 return b, lower, cost
@@ -597,7 +605,7 @@ class Driver:
         The race's field is drawn from the configurations one run of which fits the time left: a run the
         deadline stops scores nothing, so such an entrant would only rank last after taking a worker."""
         try:
-            return self._model().predict(TrainConfig.from_mapping(config))
+            return self._model().predict(TrainConfig.from_mapping(config), screened=False)  # at its own ε_test
         except (ConfigError, TypeError, ValueError):
             return math.inf
 
@@ -606,7 +614,10 @@ class Driver:
         assert self.study is not None
         config: dict[str, Any] = source.user_attrs[keys.CONFIG]
         budget = (self.study.user_attrs.get(keys.RACE_BUDGETS) or {}).get(str(source.number))
-        return config if budget is None else rung_config(TrainConfig.from_mapping(config), int(budget)).to_mapping()
+        if budget is None:
+            return config
+        rungs = source.user_attrs.get(keys.RUNGS)
+        return trained_rung_config(TrainConfig.from_mapping(config), int(budget), rungs).to_mapping()
 
     def _launch_race(self, slot: int) -> bool:
         """Start the next race run on ``slot``; False when none can start now (round running, or race over)."""
@@ -834,7 +845,8 @@ class Driver:
             if full is not None:
                 config = TrainConfig.from_mapping(full)
                 rungs: tuple[int, ...] = (config.train_iterations,) if race and self.spec.ladder else ()
-                predicted: Plan | None = Plan((config.train_iterations,), (self._model().predict(config),))
+                cost = self._model().predict(config, screened=False)  # measured with its own ε_test
+                predicted: Plan | None = Plan((config.train_iterations,), (cost,))
             else:
                 configs = self._rung_configs(params)
                 top = trial.user_attrs.get(keys.LADDER_TOP)
@@ -880,6 +892,8 @@ class Driver:
             timeout_s=st.trial_timeout_s, rungs=rungs, reseed_rungs=self.spec.ladder_reseed,
             prune_static=self.spec.ladder_prune_static and not race,  # a race run's score counts, whatever it is
             min_weight_change=0.0 if race else self.spec.ladder_min_weight_change,
+            epsilon_test_grid=self.spec.ladder_epsilon_grid if full is None and rungs else (),
+            epsilon_test_screen_runs=self.spec.ladder_epsilon_screen_runs,
             deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,
         )  # fmt: skip
         trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
@@ -994,15 +1008,35 @@ def _observations(t: FrozenTrial) -> list[Observation]:
     except ConfigError:
         return []
     out = []
-    for rung in t.user_attrs.get(keys.RUNGS) or ():
+    rungs = t.user_attrs.get(keys.RUNGS) or ()
+    share = _screen_share_of(t)
+    for rung in rungs:
         seconds = rung.get(keys.SECONDS)
         if isinstance(seconds, (int, float)):
-            out.append(Observation(tuple(features(rung_config(top, int(rung[keys.BUDGET])))), float(seconds)))
+            config = trained_rung_config(top, int(rung[keys.BUDGET]), rungs)
+            screen = [float(s[0]) for s in rung.get(keys.EPSILON_SCREEN) or ()]
+            out.append(Observation(tuple(features(config, screen=screen, screen_share=share)), float(seconds)))
     if not t.user_attrs.get(keys.RUNGS) and t.state == TrialState.COMPLETE:
         wall = t.user_attrs.get(keys.TRIAL_WALL_SECONDS)
         if isinstance(wall, (int, float)):
             out.append(Observation(tuple(features(top)), float(wall)))
     return out
+
+
+def _screen_share(spec: StudySpec) -> float:
+    """The share of the official protocol's runs each ε_test screen of ``spec`` evaluates."""
+    from sim.protocols import PROTOCOLS
+
+    return spec.ladder_epsilon_screen_runs / PROTOCOLS[OFFICIAL_PROTOCOL[spec.ruleset]].runs
+
+
+def _screen_share_of(t: FrozenTrial) -> float:
+    """The share of its protocol's runs each of a finished trial's ε_test screens evaluated (0: none stored)."""
+    from sim.protocols import PROTOCOLS
+
+    proto = PROTOCOLS.get(str(t.user_attrs.get(keys.OFFICIAL_PROTOCOL)))
+    runs = t.user_attrs.get(keys.EPSILON_SCREEN_RUNS)
+    return float(runs) / proto.runs if proto is not None and isinstance(runs, int) else 0.0
 
 
 class _Refused(Exception):
@@ -1022,7 +1056,7 @@ def _never_learned(attrs: Mapping[str, Any]) -> bool:
 def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, dict[str, Any]] | None:
     """(score, budget, config) a trial enters the seed race with, or None: its best scored net (``net_rank``
     over its value and its kept rungs) among those trained for ``min_budget`` iterations or more
-    (``StudySpec.race_min_budget``), and the configuration that trained it — at a kept rung, ``rung_config`` at
+    (``StudySpec.race_min_budget``), and the configuration that trained it — at a kept rung, ``trained_rung_config`` at
     that budget, exactly what the rung trained.
 
     A rung at or above ``min_budget`` that beat its trial's top is raced at its own budget: the cold studies' top
@@ -1048,7 +1082,8 @@ def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, 
     if budget is None:
         return score, None, config
     try:
-        return score, budget, rung_config(TrainConfig.from_mapping(config), budget).to_mapping()
+        return score, budget, trained_rung_config(TrainConfig.from_mapping(config), budget,
+                                                  t.user_attrs.get(keys.RUNGS)).to_mapping()  # fmt: skip
     except (ConfigError, TypeError, ValueError):
         return None
 

@@ -30,12 +30,17 @@ configuration on a new seed at every rung instead of promoting one lucky seed up
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 from autotune import TrainConfig
+from autotune.search import keys
 from autotune.search.seeds import derived_seed
 
-__all__ = ["DEFAULT_RUNGS", "START_LEARN_CAP", "RUNG_SALT", "Ladder", "rung_config", "rung_seed", "relative_schedule"]
+__all__ = [
+    "DEFAULT_RUNGS", "START_LEARN_CAP", "RUNG_SALT", "Ladder", "rung_config", "trained_rung_config", "rung_seed",
+    "relative_schedule",
+]  # fmt: skip
 
 DEFAULT_RUNGS: tuple[int, ...] = (10_000, 30_000, 90_000, 270_000, 810_000)
 """The default ladder [iterations]: ×3 per rung, from a quick look to the crowd's longest trainings."""
@@ -106,6 +111,17 @@ def rung_config(config: TrainConfig, budget: int) -> TrainConfig:
         learning_steps_total=total,
         start_learn_threshold=cap_start(config.start_learn_threshold, config.experience_size, budget),
     )
+
+
+def trained_rung_config(config: TrainConfig, budget: int, rungs: Sequence[Mapping[str, Any]] | None) -> TrainConfig:
+    """What the rung of ``budget`` iterations of a trial (``config``: its stored config; ``rungs``: its rung
+    records) trained and was scored with: ``rung_config``, with the ε_test that rung chose for its net where
+    ``[ladder] epsilon_test_grid`` chose one (``keys.EPSILON_TEST``)."""
+    out = rung_config(config, budget)
+    for rung in rungs or ():
+        if rung.get(keys.BUDGET) == budget and isinstance(rung.get(keys.EPSILON_TEST), (int, float)):
+            return out.replace(epsilon_test_time=float(rung[keys.EPSILON_TEST]))
+    return out
 
 
 RUNG_SALT = 0x2B_5EED

@@ -353,7 +353,8 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
     A rung is a fresh, complete training at its budget, scored with the official protocol, and its net is kept
     (``net_rung_<B>.json``): it is a net one could submit, like a model checkpoint kept for its evaluation score.
     Returns ``trial``, ``budget`` (None: the trial's value), ``score``, ``state``, ``seed`` (the one that net
-    trained from: its rung's own under ``[ladder] reseed``) and ``official_protocol``.
+    trained from: its rung's own under ``[ladder] reseed``), ``official_protocol`` and ``epsilon_test_time`` (what
+    it was scored with: the rung's choice under ``[ladder] epsilon_test_grid``, else the trial config's).
     """
     best: tuple[tuple[float, int, int], dict[str, Any]] | None = None
     for trial in study.trials:
@@ -366,8 +367,20 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
             if best is None or rank > best[0]:
                 best = (rank, {"trial": trial.number, "budget": budget, "score": score, "state": trial.state,
                                "seed": _rung_seed(attrs, budget),
-                               "official_protocol": attrs.get(keys.OFFICIAL_PROTOCOL)})  # fmt: skip
+                               "official_protocol": attrs.get(keys.OFFICIAL_PROTOCOL),
+                               "epsilon_test_time": _rung_epsilon(attrs, budget)})  # fmt: skip
     return None if best is None else best[1]
+
+
+def _rung_epsilon(attrs: Mapping[str, Any], budget: int | None) -> Any:
+    """The ε_test the trial's net at ``budget`` (None: its value's) was scored with: the rung's chosen one under
+    ``[ladder] epsilon_test_grid``, else the trial config's."""
+    if budget is not None:
+        for r in attrs.get(keys.RUNGS) or []:
+            if r.get(keys.BUDGET) == budget and r.get(keys.EPSILON_TEST) is not None:
+                return r[keys.EPSILON_TEST]
+    config = attrs.get(keys.CONFIG)
+    return config.get("epsilon_test_time") if isinstance(config, Mapping) else None
 
 
 def _rung_seed(attrs: Mapping[str, Any], budget: int | None) -> Any:
@@ -415,7 +428,7 @@ def export_best(storages: Storages, study_name: str, out_dir: str | Path) -> dic
 def export_best_net(storages: Storages, study_name: str, out_dir: str | Path) -> dict[str, Path]:
     """Write the study's ``best_net`` — a COMPLETE trial's net or a kept rung's — as ``export_trial`` does; a
     rung's ``net.config.json`` and ``net.js`` carry that rung's settings (its budget and the ε schedule scaled
-    to it, ``autotune.search.ladder.rung_config``)."""
+    to it and the ε_test it chose, ``autotune.search.ladder.trained_rung_config``)."""
     study = read_study(storages, study_name)
     found = best_net(study)
     if found is None:
@@ -425,7 +438,7 @@ def export_best_net(storages: Storages, study_name: str, out_dir: str | Path) ->
 
 def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path, budget: int | None = None) -> dict[str, Path]:
     from autotune import TrainConfig, export_netjs, loads_net, write_net
-    from autotune.search.ladder import rung_config
+    from autotune.search.ladder import trained_rung_config
 
     if budget is None:
         text = artifact_text(storages, trial, keys.ARTIFACT_NET_JSON)
@@ -440,7 +453,8 @@ def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path, budget:
         raise RecordError(f"trial {trial.number}: no training config stored (user attr {keys.CONFIG} missing)")
     net = loads_net(text, where=f"trial {trial.number} net.json")
     config = TrainConfig.from_mapping(trial.user_attrs[keys.CONFIG])
-    settings = (config if budget is None else rung_config(config, budget)).settings
+    rungs = trial.user_attrs.get(keys.RUNGS)
+    settings = (config if budget is None else trained_rung_config(config, budget, rungs)).settings
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"net.json": out / "net.json", "net.config.json": out / "net.config.json", "net.js": out / "net.js"}

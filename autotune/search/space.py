@@ -110,12 +110,13 @@ _LR_X_INPUTS_RANGE = {"low": 1e-6, "high": 10.0, "log": True}
 # the learning rate is searched per input of the net (its good range moves far less with the view: spec.LR_X_INPUTS),
 # ε's schedule is searched as fractions of each rung's budget (crowd: burn-in 0.06 %–37.5 % of
 # trainIterations, decay end 1 %–2,500 %, 10–90 % quantiles 0.5 %–20 % and 10 %–150 %), and the trainer
-# method joins (the best v2 human net, jnorthrup-v05, trained with adagrad; convnetjs's three methods).
+# method joins (the best v2 human net, jnorthrup-v05, trained with adagrad; convnetjs's three methods); ε_test
+# leaves the space: paper.toml's [ladder] epsilon_test_grid chooses it per trained net (crowd 0–0.9).
 PAPER_SPACE: dict[str, dict[str, Any]] = {
     **{(LR_X_INPUTS if k == "learning_rate" else k): (_LR_X_INPUTS_RANGE if k == "learning_rate" else v)
        for k, v in DEFAULT_SPACE.items()
        if k not in ("train_iterations", "learning_steps_total", "learning_steps_burnin", "n_layers", "neurons",
-                    "activation")},
+                    "activation", "epsilon_test_time")},
     "learning_steps_burnin_fraction": {"low": 5e-4, "high": 0.5, "log": True},
     "learning_steps_total_fraction": {"low": 0.01, "high": 5.0, "log": True},
     "method": {"choices": ["sgd", "adagrad", "adadelta"]},

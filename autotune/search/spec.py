@@ -9,7 +9,8 @@ Five tables, every key optional unless said otherwise::
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
     [resources]   workers, cpus_per_trial, gpus_per_trial
-    [ladder]      rungs = [10000, 30000, …]: training length as a budget ladder (``autotune.search.ladder``)
+    [ladder]      rungs = [10000, 30000, …]: training length as a budget ladder (``autotune.search.ladder``),
+                  min_top, prune_static, min_weight_change, reseed, epsilon_test_grid, epsilon_test_screen_runs
     [warm_start]  crowd = true: enqueue the shipped crowd settings of the study's engine first
 
 Every problem raises ``SpecError`` with ONE line naming the file, the table, the key and the fix
@@ -74,6 +75,11 @@ benchmark studies on the full space (1,042 trials): every net that scored 74.3 o
 5–175 % at 10k, except four adagrad nets at learning rates of 1e-8 to 1e-7 (under 0.05 %); 56 % of all trials —
 570 of them adagrad at 1e-8 to 1e-5 — moved under 0.1 %. Such a net's score is its initial weights' luck: the
 cold studies' leaders were of this kind, and on fresh seeds their settings scored 16 to 73."""
+EPSILON_SCREEN_RUNS = 100
+"""Default ``[ladder] epsilon_test_screen_runs``: the first 100 of v2-official's 500 runs (a prefix of the protocol:
+the same traffic and draws as its first 100 runs; ~1.2 s a screen against ~5 s for the whole evaluation). The
+site's median over 100 runs moves ~0.35 mph with the evaluation's random stream (``spread.json``: a net at
+ε_test 0.01), enough to tell ε_test 0 from 0.3 apart on one net, not 0 from 0.05."""
 BALANCE_MIN_SHARE = 0.2
 BALANCEABLE_SAMPLERS = ("tpe", "random")
 """Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
@@ -306,6 +312,12 @@ class StudySpec:
     """[ladder] reseed: train each rung below a trial's top from a seed of its own (``ladder.rung_seed``), so
     successive halving meets every configuration on a new seed per rung; false (the default when the key is left
     out): every rung from the trial's seed."""
+    ladder_epsilon_grid: tuple[float, ...] = ()
+    """[ladder] epsilon_test_grid: ε_test is chosen per trained net, not searched: each rung's net is screened at
+    these values (on ``ladder_epsilon_screen_runs`` of the official runs) and scored officially at the best; ()
+    = off (ε_test is whatever the trial's config says)."""
+    ladder_epsilon_screen_runs: int = EPSILON_SCREEN_RUNS
+    """[ladder] epsilon_test_screen_runs: the official protocol's first runs each screen evaluates."""
     warm_start: WarmStartSection = WarmStartSection()
     """Crowd prior / earlier study copied into the sampler's history."""
     source: str = ""
@@ -365,6 +377,9 @@ class StudySpec:
             ladder["min_weight_change"] = self.ladder_min_weight_change
         if self.ladder_reseed:  # likewise (a study stored before the key existed trained every rung from one seed)
             ladder["reseed"] = True
+        if self.ladder_epsilon_grid:  # likewise
+            ladder["epsilon_test_grid"] = list(self.ladder_epsilon_grid)
+            ladder["epsilon_test_screen_runs"] = self.ladder_epsilon_screen_runs
         return {
             "study": dataclasses.asdict(self.study),
             "fixed": dict(self.fixed),
@@ -452,11 +467,14 @@ def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: s
     evaluation = _parse_evaluation(data.get("evaluation", {}), source, study.ruleset, ladder="ladder" in data)
     resources = _parse_resources(data.get("resources", {}), source)
     space = tuple(_parse_dimension(name, entry, source, study.ruleset) for name, entry in data.get("space", {}).items())
-    ladder, min_top, prune_static, min_change, reseed = _parse_ladder(data.get("ladder"), source)
+    ladder, min_top, prune_static, min_change, reseed, grid, screen_runs = _parse_ladder(
+        data.get("ladder"), source, study.ruleset
+    )
     warm = _parse_warm_start(data.get("warm_start", {}), source)
     fixed = _parse_fixed(data.get("fixed", {}), source, study.ruleset, {d.name for d in space})
     spec = StudySpec(
-        study, fixed, space, evaluation, resources, ladder, min_top, prune_static, min_change, reseed, warm, source
+        study, fixed, space, evaluation, resources, ladder, min_top, prune_static, min_change, reseed, grid,
+        screen_runs, warm, source,
     )  # fmt: skip
     _check_combination(spec)
     return spec
@@ -466,7 +484,15 @@ _SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "study": tuple(f.name for f in dataclasses.fields(StudySection)),
     "evaluation": tuple(f.name for f in dataclasses.fields(EvaluationSection)),
     "resources": tuple(f.name for f in dataclasses.fields(ResourcesSection)),
-    "ladder": ("rungs", "min_top", "prune_static", "min_weight_change", "reseed"),
+    "ladder": (
+        "rungs",
+        "min_top",
+        "prune_static",
+        "min_weight_change",
+        "reseed",
+        "epsilon_test_grid",
+        "epsilon_test_screen_runs",
+    ),  # fmt: skip
     "warm_start": tuple(f.name for f in dataclasses.fields(WarmStartSection)),
 }
 
@@ -547,11 +573,13 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     )  # fmt: skip
 
 
-def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int, bool, float, bool]:
-    """``(rungs, min_top, prune_static, min_weight_change, reseed)``; min_top 0 when the table leaves it out (the
-    last rung)."""
+def _parse_ladder(
+    table: Any, src: str, ruleset: str
+) -> tuple[tuple[int, ...], int, bool, float, bool, tuple[float, ...], int]:
+    """``(rungs, min_top, prune_static, min_weight_change, reseed, epsilon_test_grid, epsilon_test_screen_runs)``;
+    min_top 0 when the table leaves it out (the last rung)."""
     if table is None:
-        return (), 0, True, MIN_WEIGHT_CHANGE, False
+        return (), 0, True, MIN_WEIGHT_CHANGE, False, (), EPSILON_SCREEN_RUNS
     _check_keys(table, "ladder", src)
     rungs = table.get("rungs")
     what = f"{src}: [ladder] rungs"
@@ -578,7 +606,33 @@ def _parse_ladder(table: Any, src: str) -> tuple[tuple[int, ...], int, bool, flo
     reseed = table.get("reseed", False)
     if not isinstance(reseed, bool):
         raise SpecError(f"{src}: [ladder] reseed: must be true or false, got {reseed!r}; write reseed = true")
-    return tuple(values), (0 if min_top == values[-1] else int(min_top)), prune, change, reseed
+    grid, screen_runs = _parse_epsilon_grid(table, src, ruleset)
+    return tuple(values), (0 if min_top == values[-1] else int(min_top)), prune, change, reseed, grid, screen_runs
+
+
+def _parse_epsilon_grid(table: Mapping[str, Any], src: str, ruleset: str) -> tuple[tuple[float, ...], int]:
+    """``[ladder] epsilon_test_grid`` (distinct values in ε_test's range, sorted) and ``epsilon_test_screen_runs``
+    (1 … the official protocol's runs)."""
+    from sim.protocols import PROTOCOLS
+
+    where = f"{src}: [ladder] epsilon_test_grid"
+    raw = table.get("epsilon_test_grid", [])
+    if not isinstance(raw, list) or any(isinstance(e, bool) or not isinstance(e, (int, float)) for e in raw):
+        raise SpecError(f"{where}: must be a list of ε_test values, got {raw!r}; e.g. epsilon_test_grid = [0.0, 0.1, "
+                        "0.3, 0.6]")  # fmt: skip
+    lo, hi = fields.bounds("epsilon_test_time")
+    grid = tuple(sorted({_float(e, where, float(lo), float(hi or 1.0)) for e in raw}))
+    if len(grid) == 1:
+        raise SpecError(f"{where}: one value ({grid[0]:g}) is no choice; fix it with [fixed] epsilon_test_time = "
+                        f"{grid[0]:g}, or list two or more values")  # fmt: skip
+    runs = PROTOCOLS[OFFICIAL_PROTOCOL[ruleset]].runs
+    screen = _int(
+        table.get("epsilon_test_screen_runs", min(EPSILON_SCREEN_RUNS, runs)),
+        f"{src}: [ladder] epsilon_test_screen_runs (the official protocol's first runs per screen)",
+        1,
+        runs,
+    )
+    return grid, screen
 
 
 def _parse_warm_start(table: Mapping[str, Any], src: str) -> WarmStartSection:
@@ -850,6 +904,15 @@ def _check_combination(spec: StudySpec) -> None:
             if name in dims:
                 raise where.error(name, "fractions of the budget need a [ladder]",
                                   "add [ladder] rungs = [...] or search learning_steps_* directly")  # fmt: skip
+    if spec.ladder_epsilon_grid:
+        for name in ("epsilon_test_time", EPSILON_TEST_SHIFTED):
+            if name in dims or name in fixed:
+                table = "space" if name in dims else "fixed"
+                raise _Where(src, table).error(
+                    name,
+                    "is set, but [ladder] epsilon_test_grid chooses ε_test per net",
+                    f"remove {name} from [{table}] or epsilon_test_grid from [ladder]",
+                )
     _check_balance(spec)
     exp = dims.get("experience_size")
     if "start_learn_threshold" in fixed and exp is not None:

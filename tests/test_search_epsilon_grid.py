@@ -1,0 +1,223 @@
+"""``[ladder] epsilon_test_grid``: ε_test chosen per trained net (screened on a prefix of the official runs), not
+searched as a training setting.
+
+ε_test acts only at test time, so one training serves every value: each rung screens its net at the grid's values
+on the protocol's first runs and is scored officially at the best. Checked here: a screen is exactly the protocol's
+first runs; a rung's choice is its best screen and its score a standalone training scored at that ε_test; the
+trial's config, a kept rung's config (race entry, export) and a retrain carry the chosen value; race runs and
+replays are measured at their own ε_test; the cost model prices the screens; the spec's refusals.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import pytest
+
+from autotune import TrainConfig, evaluate_official
+from autotune.learner import train
+from autotune.search import keys, space
+from autotune.search.cost import CostModel, features
+from autotune.search.driver import Driver, race_entry
+from autotune.search.gate import distributions
+from autotune.search.ladder import rung_config, trained_rung_config
+from autotune.search.objective import COMPLETE, TrialTask, choose_epsilon, run_trial
+from autotune.search.spec import EPSILON_SCREEN_RUNS, SpecError, parse_spec
+from autotune.search.storage import open_storage
+from tests.conftest import FakePool
+
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+TINY = TrainConfig(
+    ruleset="v2", lanes_side=0, patches_ahead=2, other_agents=1, train_iterations=1200, temporal_window=0,
+    experience_size=500, start_learn_threshold=100, learning_steps_burnin=120, learning_steps_total=600,
+    layers="fc:4:relu", batch_size=8,
+)  # fmt: skip
+GRID = (0.0, 0.2, 0.6)
+
+
+def _data(**ladder: Any) -> dict[str, Any]:
+    return {
+        "study": {"name": "eps", "n_trials": 10, "timeout_s": 60, "race_configs": 2, "race_seeds": 1},
+        "ladder": {"rungs": [400, 1200], "epsilon_test_grid": list(GRID), "epsilon_test_screen_runs": 50, **ladder},
+        "fixed": {"otherAgents": 1, "temporal_window": 0, "experience_size": 500, "batch_size": 8},
+        "space": {"lanes_side": {"low": 0, "high": 2}, "patches_ahead": {"low": 1, "high": 4},
+                  "learning_steps_burnin_fraction": {"low": 0.01, "high": 0.2, "log": True}},
+    }  # fmt: skip
+
+
+def test_a_screen_is_the_official_protocols_first_runs() -> None:
+    """The premise of screening: ``runs = n`` evaluates exactly the whole protocol's first n runs (same traffic,
+    same draws), so a screen ranks ε_test on the very runs the official score starts with."""
+    net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
+    for epsilon in (0.0, 0.3):
+        config = TINY.replace(epsilon_test_time=epsilon)
+        whole, first = evaluate_official(net, config), evaluate_official(net, config, runs=40)
+        assert first.runs == 40 and list(first.scores) == list(whole.scores[:40])
+
+
+def test_each_rung_is_scored_at_its_best_screen_and_is_a_standalone_training() -> None:
+    """A grid trial's rung records its screens (one per grid value, each the protocol's first runs at that
+    ε_test), chooses the best, and its score is the rung's standalone training scored officially at that ε_test;
+    the trial's config carries its last rung's choice, so a retrain from config and seed gives its value."""
+    task = TrialTask(number=0, config=TINY.to_mapping(), seed=7, rungs=(400, 1200), epsilon_test_grid=GRID,
+                     epsilon_test_screen_runs=50)  # fmt: skip
+    outcome = run_trial(task, lambda *a: False)
+    assert outcome.state == COMPLETE, outcome.cause
+    rungs = outcome.attrs[keys.RUNGS]
+    assert outcome.attrs[keys.EPSILON_SCREEN_RUNS] == 50
+    for rung in rungs:
+        alone = rung_config(TINY, rung[keys.BUDGET])
+        net = train(alone, rung[keys.SEED], quick_eval=False).convnet()
+        screens = rung[keys.EPSILON_SCREEN]
+        assert [s[0] for s in screens] == list(GRID)
+        for epsilon, median, mean in screens:
+            ev = evaluate_official(net, alone.replace(epsilon_test_time=epsilon), runs=50)
+            assert (median, mean) == (ev.median_site, ev.mean)
+        best = max(screens, key=lambda s: (s[1], s[2], -s[0]))
+        assert rung[keys.EPSILON_TEST] == best[0]
+        assert evaluate_official(net, alone.replace(epsilon_test_time=best[0])).median_site == rung[keys.SCORE]
+        assert trained_rung_config(TINY, rung[keys.BUDGET], rungs).epsilon_test_time == best[0]
+    top = TrainConfig.from_mapping(outcome.attrs[keys.CONFIG])
+    assert top.epsilon_test_time == rungs[-1][keys.EPSILON_TEST]
+    assert outcome.attrs[keys.SETTINGS]["opt"]["epsilon_test_time"] == top.epsilon_test_time
+    again = run_trial(TrialTask(number=0, config=top.to_mapping(), seed=7), lambda *a: False)  # autotune's retrain
+    assert again.value == outcome.value
+
+
+def test_choose_epsilon_breaks_ties_by_the_mean_then_the_smaller_value() -> None:
+    """Equal screens (a net whose greedy choice never matters, like ε_test's own random moves on one lane) pick
+    the smaller ε_test; the frames count every screen's runs."""
+    net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
+    epsilon, screens, frames = choose_epsilon(net, TINY, "v2-official", (0.1, 0.1 + 1e-12), 20)
+    assert frames == 2 * 20 * 2000 and len(screens) == 2
+    if screens[0][1:] == screens[1][1:]:
+        assert epsilon == 0.1
+
+
+def test_the_spec_key_its_refusals_and_round_trip() -> None:
+    spec = parse_spec(_data(), source="eps.toml")
+    assert spec.ladder_epsilon_grid == GRID and spec.ladder_epsilon_screen_runs == 50
+    assert parse_spec(spec.to_dict(), source="eps.toml") == spec
+    off = _data()
+    del off["ladder"]["epsilon_test_grid"], off["ladder"]["epsilon_test_screen_runs"]
+    plain = parse_spec(off, source="off.toml")
+    assert plain.ladder_epsilon_grid == () and "epsilon_test_grid" not in plain.to_dict()["ladder"]
+    unsorted = _data(epsilon_test_grid=[0.5, 0.0, 0.5, 0.25])
+    del unsorted["ladder"]["epsilon_test_screen_runs"]
+    assert parse_spec(unsorted, source="u.toml").ladder_epsilon_grid == (0.0, 0.25, 0.5)
+    assert parse_spec(unsorted, source="u.toml").ladder_epsilon_screen_runs == EPSILON_SCREEN_RUNS
+
+    def refused(data: dict[str, Any], match: str) -> None:
+        with pytest.raises(SpecError, match=match):
+            parse_spec(data, source="bad.toml")
+
+    searched = _data()
+    searched["space"]["epsilon_test_time"] = {"low": 0.0, "high": 0.9}
+    refused(
+        searched,
+        r"bad.toml: \[space\] epsilon_test_time: is set, but \[ladder\] epsilon_test_grid chooses "
+        r"ε_test per net; remove epsilon_test_time from \[space\] or epsilon_test_grid from \[ladder\]",
+    )
+    shifted = _data()
+    shifted["space"]["epsilon_test_time_shifted"] = {"low": 0.005, "high": 0.905, "log": True}
+    refused(shifted, r"\[space\] epsilon_test_time_shifted: is set")
+    fixed = _data()
+    fixed["fixed"]["epsilon_test_time"] = 0.1
+    refused(fixed, r"\[fixed\] epsilon_test_time: is set, but")
+    refused(
+        _data(epsilon_test_grid=[0.2]),
+        r"\[ladder\] epsilon_test_grid: one value \(0.2\) is no choice; fix it "
+        r"with \[fixed\] epsilon_test_time = 0.2",
+    )
+    refused(_data(epsilon_test_grid=[0.0, 1.5]), r"\[ladder\] epsilon_test_grid")
+    refused(_data(epsilon_test_grid="0, 0.1"), r"\[ladder\] epsilon_test_grid: must be a list of ε_test values")
+    refused(_data(epsilon_test_grid=[0.0, True]), r"must be a list of ε_test values")
+    refused(_data(epsilon_test_screen_runs=501), r"\[ladder\] epsilon_test_screen_runs")
+    refused(_data(epsilon_test_screen_runs=0), r"\[ladder\] epsilon_test_screen_runs")
+    refused(_data(epsilon_test_gird=[0.0]), r"epsilon_test_grid")  # unknown key: the nearest valid one named
+
+
+def test_resuming_with_another_grid_is_refused(tmp_path: Path) -> None:
+    """The grid changes what a trial's value measures: like a changed [space], a resume with another is refused."""
+    spec = parse_spec(_data(), source="eps.toml").with_overrides(storage=str(tmp_path / "j.log"))
+    Driver(spec, open_storage(spec.study.storage, spec.study.name)).open_study()
+    other = parse_spec(_data(epsilon_test_grid=[0.0, 0.5]), source="eps2.toml")
+    other = other.with_overrides(storage=str(tmp_path / "j.log"))
+    with pytest.raises(SpecError, match=r"eps2.toml: \[ladder\] epsilon_test_grid: the study 'eps' was created"):
+        Driver(other, open_storage(other.study.storage, other.study.name)).open_study()
+
+
+def test_sampled_trials_screen_and_race_runs_keep_their_own_epsilon(tmp_path: Path) -> None:
+    """The driver hands the grid to every sampled ladder trial, never to a race run: a configuration's fresh
+    seeds are measured at the ε_test its selecting rung chose (``trained_rung_config``), or the race would
+    re-pick ε_test on every seed."""
+    spec = parse_spec(_data(), source="eps.toml").with_overrides(storage=str(tmp_path / "j.log"))
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver.pool = FakePool()
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    assert driver._launch_next(0)  # noqa: SLF001
+    task = driver.pool.tasks[0]
+    assert task.epsilon_test_grid == GRID and task.epsilon_test_screen_runs == 50
+    study.tell(study.trials[0].number, state=optuna.trial.TrialState.FAIL)
+
+    dists = distributions(spec)
+    cfg = TINY.replace(epsilon_test_time=0.2)  # the trial's config: its top rung chose 0.2
+    rungs = [{keys.BUDGET: 400, keys.SCORE: 74.0, keys.EPSILON_TEST: 0.6},
+             {keys.BUDGET: 1200, keys.SCORE: 70.0, keys.EPSILON_TEST: 0.2}]  # fmt: skip
+    study.add_trial(optuna.trial.create_trial(
+        params=space.encode(spec, cfg), distributions=dists, value=70.0, state=optuna.trial.TrialState.COMPLETE,
+        user_attrs={keys.CONFIG: cfg.to_mapping(), keys.SEED: 1, keys.OFFICIAL_PROTOCOL: "v2-official",
+                    keys.RUNGS: rungs, keys.ARTIFACT_RUNG_NETS: {"400": "a", "1200": "b"}},
+    ))  # fmt: skip
+    trial = study.trials[-1]
+    score, budget, raced = race_entry(trial, 400)  # type: ignore[misc]
+    assert (score, budget) == (74.0, 400)
+    assert TrainConfig.from_mapping(raced).epsilon_test_time == 0.6  # what the 400 rung was scored with
+    assert race_entry(trial, 1200)[2] == cfg.to_mapping()  # type: ignore[index]
+    assert TrainConfig.from_mapping(driver._raced_config(trial)).epsilon_test_time == 0.2  # noqa: SLF001
+
+    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-9, 0.0, 0.0, 0.0, 0.0, 0.0))
+    driver._fitted_on = 10**6  # noqa: SLF001
+    driver.pool = FakePool()
+    driver._race_state()  # noqa: SLF001
+    assert driver._launch_race(0)  # noqa: SLF001
+    (run,) = [t for t in study.trials if keys.RACE_OF in t.user_attrs]
+    assert driver.pool.tasks[0].epsilon_test_grid == ()
+    assert TrainConfig.from_mapping(driver.pool.tasks[0].config).epsilon_test_time in (0.6, 0.2)
+    assert run.user_attrs[keys.CONFIG] == driver.pool.tasks[0].config
+
+
+def test_the_cost_model_prices_the_screens(tmp_path: Path) -> None:
+    """Each screen adds one evaluation set-up and its share of the runs' work; the driver's model screens sampled
+    rungs at the spec's grid, a race run (``screened=False``) not; a refit keeps the grid."""
+    config = TINY.replace(epsilon_test_time=0.0)
+    plain = features(config)
+    screened = features(config, screen=(0.0, 0.5), screen_share=0.2)
+    assert screened[5] == plain[5] + 2  # set-ups
+    assert screened[6] == pytest.approx(plain[6] * 1.4)  # cars: 1 + 2 × 0.2 evaluations' worth
+    assert screened[8] == pytest.approx(plain[8] * (1.0 + 0.2 * (1.0 + 0.5)))  # input fills at each ε_test
+    assert np.array_equal(screened[:5], plain[:5])  # training work unchanged
+    model = CostModel.prior().screening((0.0, 0.5), 0.2)
+    assert model.predict(config) > model.predict(config, screened=False) == CostModel.prior().predict(config)
+    assert model.fit([]).screen == (0.0, 0.5) and model.fit([]).screen_share == 0.2
+    driver = Driver(parse_spec(_data(), source="eps.toml"), open_storage(str(tmp_path / "j.log"), "eps"))
+    model = driver._prior_model()  # noqa: SLF001
+    assert model.screen == GRID and model.screen_share == 50 / 500
+
+
+def test_paper_spaces_without_the_grid_are_unchanged(tmp_path: Path) -> None:
+    """A spec without the key keeps its ε_test as a setting (searched or fixed) and its trials' configs as drawn."""
+    data = _data()
+    del data["ladder"]["epsilon_test_grid"], data["ladder"]["epsilon_test_screen_runs"]
+    data["space"]["epsilon_test_time"] = {"low": 0.0, "high": 0.9}
+    spec = parse_spec(data, source="plain.toml")
+    driver = Driver(spec, open_storage(str(tmp_path / "j.log"), "eps"))
+    assert spec.ladder_epsilon_grid == () and driver._prior_model().screen == ()  # noqa: SLF001
+    assert dataclasses.replace(TrialTask(number=0, config={}, seed=1)).epsilon_test_grid == ()

@@ -90,14 +90,24 @@ def test_each_rung_is_scored_at_its_best_screen_and_is_a_standalone_training() -
     assert again.value == outcome.value
 
 
-def test_choose_epsilon_breaks_ties_by_the_mean_then_the_smaller_value() -> None:
-    """Equal screens (a net whose greedy choice never matters, like ε_test's own random moves on one lane) pick
-    the smaller ε_test; the frames count every screen's runs."""
-    net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
-    epsilon, screens, frames = choose_epsilon(net, TINY, "v2-official", (0.1, 0.1 + 1e-12), 20)
-    assert frames == 2 * 20 * 2000 and len(screens) == 2
-    if screens[0][1:] == screens[1][1:]:
-        assert epsilon == 0.1
+def test_choose_epsilon_breaks_ties_by_the_mean_then_the_smaller_value(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The site's median ranks the screens, then the mean, then the smaller ε_test; each screen runs the protocol's
+    first ``screen_runs`` runs and the frames count them all."""
+    import autotune
+
+    by_epsilon = {0.0: (73.0, 72.0), 0.1: (74.0, 72.5), 0.2: (74.0, 72.9), 0.3: (74.0, 72.9), 0.5: (73.9, 73.5)}
+    calls: list[tuple[float, int | None]] = []
+
+    def fake(net: Any, config: TrainConfig, *, protocol: str, runs: int | None = None, progress: Any = None) -> Any:
+        calls.append((config.epsilon_test_time, runs))
+        median, mean = by_epsilon[config.epsilon_test_time]
+        return dataclasses.make_dataclass("Ev", ["median_site", "mean", "runs", "frames"])(median, mean, runs, 2000)
+
+    monkeypatch.setattr(autotune, "evaluate_official", fake)
+    epsilon, screens, frames = choose_epsilon(object(), TINY, "v2-official", tuple(by_epsilon), 20)
+    assert epsilon == 0.2  # 74.0 at 0.1, 0.2 and 0.3: the higher mean (72.9) at 0.2 and 0.3, then the smaller
+    assert screens == [[e, m, a] for e, (m, a) in by_epsilon.items()]
+    assert calls == [(e, 20) for e in by_epsilon] and frames == 5 * 20 * 2000
 
 
 def test_the_spec_key_its_refusals_and_round_trip() -> None:

@@ -70,15 +70,18 @@ def test_plain_space_is_define_by_run_over_the_papers_space() -> None:
     spec = load_spec(PAPER)
     dims, notes = sq.plain_space(spec)
     # the service's learning rate per input is the user's learning rate over the crowd's range
+    # and ε_test, which the service chooses per net ([ladder] epsilon_test_grid), is the user's to draw
     assert {d.name for d in dims} == {d.name for d in spec.space} - {"learning_rate_x_inputs"} | {
         "train_iterations",
         "learning_rate",
+        "epsilon_test_time",
     }
     (length,) = [d for d in dims if d.name == "train_iterations"]
     assert (length.low, length.high, length.log) == (10_000, 90_000, True)  # the ladder's range up to min_top
     (rate,) = [d for d in dims if d.name == "learning_rate"]
     assert (rate.low, rate.high, rate.log) == (1e-8, 1e-2, True)
-    assert len(notes) == 2 and "learning_rate over the crowd's range" in notes[0] and "ladder" in notes[1]
+    assert len(notes) == 3 and "learning_rate over the crowd's range" in notes[0] and "ladder" in notes[2]
+    assert "epsilon_test_grid) sampled as epsilon_test_time" in notes[1]
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
     layer_counts = set()
     for _ in range(40):
@@ -391,7 +394,11 @@ def test_calibration_draws_are_priced_by_the_prior_and_reproducible() -> None:
         assert sum(job["predicted_s"]) <= 300.0
         top = TrainConfig.from_mapping(job["config"])
         assert top.train_iterations == job["rungs"][-1]
-        assert CostModel.prior().predict(top) == pytest.approx(job["predicted_s"][-1])
+        # the study's model: each rung screens its net at paper.toml's ε_test grid on 100 of the 500 runs
+        model = CostModel.prior().screening(spec.ladder_epsilon_grid, 100 / 500)
+        assert model.predict(top) == pytest.approx(job["predicted_s"][-1])
+        assert job["predicted_s"][-1] > CostModel.prior().predict(top)
+        assert job["epsilon_test_grid"] == list(spec.ladder_epsilon_grid) and job["epsilon_test_screen_runs"] == 100
     assert len({job["seed"] for job in jobs}) == 4
     again, _, _ = sq.calibration_draws(spec, 4, 14, 300.0)
     assert again == jobs

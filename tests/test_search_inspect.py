@@ -318,7 +318,7 @@ def test_best_single_net_may_be_a_kept_rung(journal_study, capsys, tmp_path):
     study.add_trial(create_trial(state=TrialState.PRUNED, user_attrs=attrs, intermediate_values={1: 71.0, 3: 72.0}))
     found = best_net(read_study(storages, name))
     assert found == {"trial": 4, "budget": 3000, "score": VALUES[1] + 1.5, "state": "PRUNED", "seed": 77,
-                     "official_protocol": "v2-official"}  # fmt: skip
+                     "official_protocol": "v2-official", "epsilon_test_time": top.epsilon_test_time}  # fmt: skip
 
     out_dir = tmp_path / "export"
     code, out, err = run_cli(capsys, "best", name, "--storage", storage, "--export", str(out_dir), "--json")
@@ -338,3 +338,17 @@ def test_best_single_net_may_be_a_kept_rung(journal_study, capsys, tmp_path):
                                  intermediate_values={1: 71.0, 3: 72.5}))  # fmt: skip
     found = best_net(read_study(storages, name))
     assert found is not None and (found["trial"], found["budget"], found["seed"]) == (5, 3000, 91)
+
+    # under [ladder] epsilon_test_grid a rung records the ε_test it chose for its net: reported, exported, printed
+    rungs = [{"budget": 1000, "score": 71.0}, {"budget": 3000, "score": VALUES[1] + 2.5, "chosen_epsilon_test": 0.45}]
+    study.add_trial(create_trial(state=TrialState.PRUNED, user_attrs={**attrs, "rungs": rungs},
+                                 intermediate_values={1: 71.0, 3: 73.0}))  # fmt: skip
+    found = best_net(read_study(storages, name))
+    assert found is not None and (found["trial"], found["epsilon_test_time"]) == (6, 0.45)
+    chosen = tmp_path / "chosen"
+    code, out, err = run_cli(capsys, "best", name, "--storage", storage, "--export", str(chosen))
+    assert code == 0, err
+    assert "trial 6's 3,000-iteration rung (pruned trial, seed 77), 73.00 mph: a complete training at that " in out
+    assert "scored officially at ε_test 0.45" in out
+    _, settings = autotune.load_net_and_settings(chosen / "net.json")
+    assert settings == rung_config(top, 3000).replace(epsilon_test_time=0.45).settings

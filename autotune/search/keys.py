@@ -55,7 +55,7 @@ WEIGHT_CHANGE: Final = "weight_change"
 POLICY_LEARNS: Final = "policy_learns"
 """Optuna constraint name (> 0: infeasible) told for a static-policy trial or one that does not learn, so samplers
 rank it last."""
-EPSILON_TEST: Final = "epsilon_test_time"
+EPSILON_TEST: Final = "chosen_epsilon_test"
 """A rung's ε_test, chosen for its net by ``[ladder] epsilon_test_grid`` (absent: the trial config's)."""
 EPSILON_SCREEN: Final = "epsilon_screen"
 """A rung's ε_test screens: ``[ε, site median, mean]`` over the official protocol's first runs, per grid value."""

@@ -1076,10 +1076,7 @@ def calibration_draws(spec: Any, n: int, seed: int, cap_s: float) -> tuple[list[
     draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
     model = CostModel.prior()
     if spec.ladder_epsilon_grid:  # each rung screens its net at the grid, as the study's trials do
-        from sim.protocols import OFFICIAL, PROTOCOLS
-
-        share = spec.ladder_epsilon_screen_runs / PROTOCOLS[OFFICIAL[spec.ruleset]].runs
-        model = model.screening(spec.ladder_epsilon_grid, share)
+        model = model.screening(spec.ladder_epsilon_grid, spec.ladder_epsilon_screen_share)
     jobs: list[dict[str, Any]] = []
     refused: list[str] = []
     drawn = 0

@@ -199,8 +199,9 @@ def test_sampled_trials_screen_and_race_runs_keep_their_own_epsilon(tmp_path: Pa
     driver._race_state()  # noqa: SLF001
     assert driver._launch_race(0)  # noqa: SLF001
     (run,) = [t for t in study.trials if keys.RACE_OF in t.user_attrs]
-    assert driver.pool.tasks[0].epsilon_test_grid == ()
-    assert TrainConfig.from_mapping(driver.pool.tasks[0].config).epsilon_test_time in (0.6, 0.2)
+    raced = TrainConfig.from_mapping(driver.pool.tasks[0].config)
+    assert driver.pool.tasks[0].epsilon_test_grid == ()  # the race measures the configuration, never re-chooses
+    assert (raced.train_iterations, raced.epsilon_test_time) == (1200, 0.2)  # the top the gate priced, its choice
     assert run.user_attrs[keys.CONFIG] == driver.pool.tasks[0].config
 
 
@@ -222,12 +223,21 @@ def test_the_cost_model_prices_the_screens(tmp_path: Path) -> None:
     assert model.screen == GRID and model.screen_share == 50 / 500
 
 
-def test_paper_spaces_without_the_grid_are_unchanged(tmp_path: Path) -> None:
-    """A spec without the key keeps its ε_test as a setting (searched or fixed) and its trials' configs as drawn."""
+def test_a_spec_without_the_grid_searches_epsilon_test_as_before(tmp_path: Path) -> None:
+    """Without the key ε_test stays a searched setting: no screens are priced or run, and the trial trains and is
+    scored at the ε_test it drew."""
     data = _data()
     del data["ladder"]["epsilon_test_grid"], data["ladder"]["epsilon_test_screen_runs"]
     data["space"]["epsilon_test_time"] = {"low": 0.0, "high": 0.9}
-    spec = parse_spec(data, source="plain.toml")
-    driver = Driver(spec, open_storage(str(tmp_path / "j.log"), "eps"))
-    assert spec.ladder_epsilon_grid == () and driver._prior_model().screen == ()  # noqa: SLF001
-    assert dataclasses.replace(TrialTask(number=0, config={}, seed=1)).epsilon_test_grid == ()
+    spec = parse_spec(data, source="plain.toml").with_overrides(storage=str(tmp_path / "j.log"))
+    assert spec.ladder_epsilon_grid == () and spec.ladder_epsilon_screen_share == 0.0
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    assert driver._prior_model().screen == ()  # noqa: SLF001
+    study = driver.open_study()
+    driver.pool = FakePool()
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    assert driver._launch_next(0)  # noqa: SLF001
+    task = driver.pool.tasks[0]
+    assert task.epsilon_test_grid == () and task.rungs
+    drawn = study.trials[0].params["epsilon_test_time"]
+    assert TrainConfig.from_mapping(task.config).epsilon_test_time == drawn

@@ -57,7 +57,7 @@ import optuna
 from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
-from autotune import OFFICIAL_PROTOCOL, TrainConfig
+from autotune import TrainConfig
 from autotune.search import keys, racing, space
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, features, plan
@@ -403,7 +403,7 @@ class Driver:
         """The prior cost model, pricing each sampled rung's ε_test screens where the spec has a grid."""
         model = CostModel.prior()
         if self.spec.ladder_epsilon_grid:
-            model = model.screening(self.spec.ladder_epsilon_grid, _screen_share(self.spec))
+            model = model.screening(self.spec.ladder_epsilon_grid, self.spec.ladder_epsilon_screen_share)
         return model
 
     # -- warm start ------------------------------------------------------------------------
@@ -1021,13 +1021,6 @@ def _observations(t: FrozenTrial) -> list[Observation]:
         if isinstance(wall, (int, float)):
             out.append(Observation(tuple(features(top)), float(wall)))
     return out
-
-
-def _screen_share(spec: StudySpec) -> float:
-    """The share of the official protocol's runs each ε_test screen of ``spec`` evaluates."""
-    from sim.protocols import PROTOCOLS
-
-    return spec.ladder_epsilon_screen_runs / PROTOCOLS[OFFICIAL_PROTOCOL[spec.ruleset]].runs
 
 
 def _screen_share_of(t: FrozenTrial) -> float:

@@ -38,8 +38,8 @@ from autotune.search import keys
 from autotune.search.seeds import derived_seed
 
 __all__ = [
-    "DEFAULT_RUNGS", "START_LEARN_CAP", "RUNG_SALT", "Ladder", "rung_config", "trained_rung_config", "rung_seed",
-    "relative_schedule",
+    "DEFAULT_RUNGS", "START_LEARN_CAP", "RUNG_SALT", "Ladder", "rung_config", "trained_rung_config", "rung_epsilon",
+    "rung_seed", "relative_schedule",
 ]  # fmt: skip
 
 DEFAULT_RUNGS: tuple[int, ...] = (10_000, 30_000, 90_000, 270_000, 810_000)
@@ -118,10 +118,17 @@ def trained_rung_config(config: TrainConfig, budget: int, rungs: Sequence[Mappin
     records) trained and was scored with: ``rung_config``, with the ε_test that rung chose for its net where
     ``[ladder] epsilon_test_grid`` chose one (``keys.EPSILON_TEST``)."""
     out = rung_config(config, budget)
+    epsilon = rung_epsilon(rungs, budget)
+    return out if epsilon is None else out.replace(epsilon_test_time=epsilon)
+
+
+def rung_epsilon(rungs: Sequence[Mapping[str, Any]] | None, budget: int) -> float | None:
+    """The ε_test the rung of ``budget`` iterations chose for its net (``keys.EPSILON_TEST``); None where it
+    chose none (no ``[ladder] epsilon_test_grid``: the trial config's ε_test holds)."""
     for rung in rungs or ():
         if rung.get(keys.BUDGET) == budget and isinstance(rung.get(keys.EPSILON_TEST), (int, float)):
-            return out.replace(epsilon_test_time=float(rung[keys.EPSILON_TEST]))
-    return out
+            return float(rung[keys.EPSILON_TEST])
+    return None
 
 
 RUNG_SALT = 0x2B_5EED

@@ -375,10 +375,11 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
 def _rung_epsilon(attrs: Mapping[str, Any], budget: int | None) -> Any:
     """The ε_test the trial's net at ``budget`` (None: its value's) was scored with: the rung's chosen one under
     ``[ladder] epsilon_test_grid``, else the trial config's."""
-    if budget is not None:
-        for r in attrs.get(keys.RUNGS) or []:
-            if r.get(keys.BUDGET) == budget and r.get(keys.EPSILON_TEST) is not None:
-                return r[keys.EPSILON_TEST]
+    from autotune.search.ladder import rung_epsilon
+
+    chosen = None if budget is None else rung_epsilon(attrs.get(keys.RUNGS), budget)
+    if chosen is not None:
+        return chosen
     config = attrs.get(keys.CONFIG)
     return config.get("epsilon_test_time") if isinstance(config, Mapping) else None
 

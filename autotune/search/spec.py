@@ -359,6 +359,15 @@ class StudySpec:
         return self.ladder[self.gated_rungs - 1] if self.ladder else 0
 
     @property
+    def ladder_epsilon_screen_share(self) -> float:
+        """The share of the official protocol's runs each ε_test screen evaluates (0 without a grid)."""
+        if not self.ladder_epsilon_grid:
+            return 0.0
+        from sim.protocols import PROTOCOLS
+
+        return self.ladder_epsilon_screen_runs / PROTOCOLS[OFFICIAL_PROTOCOL[self.ruleset]].runs
+
+    @property
     def gated_rungs(self) -> int:
         """How many of the ladder's rungs the cost gate prices a draw at (all of them unless ``min_top``)."""
         if not self.ladder_min_top:

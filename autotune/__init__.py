@@ -37,6 +37,8 @@ _EXPORTS: dict[str, str] = {
     "quick_evaluate": "autotune.learner.quick_eval",
     # exact evaluation of a net
     "evaluate_official": "autotune.learner.official",
+    "screen_epsilons": "autotune.learner.official",
+    "EpsilonScreens": "autotune.learner.official",
     "official_protocol": "autotune.learner.official",
     "OFFICIAL_PROTOCOL": "autotune.learner.official",
     "evaluate_net": "autotune.learner.brain_policy",

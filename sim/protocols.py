@@ -236,12 +236,7 @@ def _evaluate(
             sim = Simulator(config, runs, frames, 1)
             sim.seed_independent(seed)
             return sim
-        sim = Simulator(config, 1, frames, runs)
-        if protocol == V1_DISTRIBUTION:
-            sim.seed_per_run([seed + i for i in range(runs)])
-        else:
-            sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
-        return sim
+        return _sequential_sim(config, protocol, seed, runs, frames, stream_state)
 
     run_world = getattr(policy, "run_world", None)  # the policy's own (cached) compiled single-world driver
     python_driven = builtin is None and not (sequential and (compiled is not None or run_world is not None))
@@ -259,16 +254,7 @@ def _evaluate(
     if python_driven:
         _drive(sim, policy, progress, total)
     elif sequential:  # one world with the policy compiled inline, in chunks of runs for the progress bar
-        chunk = max(1, 200_000 // frames)
-        while not sim.done:
-            if builtin is not None:
-                builtin.run(sim, max_runs=chunk)
-            elif run_world is not None:
-                run_world(sim, chunk)
-            else:
-                sim.run_compiled(compiled, policy.pstate, max_runs=chunk)  # type: ignore[attr-defined]
-            if progress:
-                progress(int(sim.ints[0, I_RUNS_DONE]) * frames, total)
+        _advance(sim, policy, runs, progress)
     else:  # a built-in over independent worlds, in chunks of worlds for the progress bar
         assert builtin is not None
         chunk = max(64, 4_000_000 // frames)
@@ -293,6 +279,123 @@ def _evaluate(
         wall_seconds=wall,
         official_size=(runs == proto.runs and frames == proto.frames),
     )
+
+
+def _sequential_sim(
+    config: EngineConfig, protocol: str, seed: int, runs: int, frames: int, stream_state: int | None
+) -> Simulator:
+    """The one world of a sequential evaluation, seeded as the protocol's harness seeds it."""
+    sim = Simulator(config, 1, frames, runs)
+    if protocol == V1_DISTRIBUTION:
+        sim.seed_per_run([seed + i for i in range(runs)])
+    else:
+        sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
+    return sim
+
+
+def _advance(sim: Simulator, policy: Any, until: int, progress: ProgressFn | None) -> None:
+    """Drive a sequential world (policy compiled inline) until ``until`` runs are done, in chunks of runs.
+
+    Everything a run hands the next — the world, the ``Math.random`` stream, the policy's ``pstate`` — lives in
+    arrays that persist between calls, so where the chunks end changes no score."""
+    frames = sim.frames_per_run
+    total = sim.runs_per_world * frames
+    chunk = max(1, 200_000 // frames)
+    run_world = getattr(policy, "run_world", None)
+    while not sim.done and int(sim.ints[0, I_RUNS_DONE]) < until:
+        n = min(chunk, until - int(sim.ints[0, I_RUNS_DONE]))
+        if isinstance(policy, BoundPolicy):
+            policy.run(sim, max_runs=n)
+        elif run_world is not None:
+            run_world(sim, n)
+        else:
+            sim.run_compiled(policy.compiled, policy.pstate, max_runs=n)
+        if progress:
+            progress(int(sim.ints[0, I_RUNS_DONE]) * frames, total)
+
+
+class SequentialEvaluation:
+    """A sequential protocol's evaluation that pauses between runs: ``advance(n)`` drives n more runs,
+    ``result()`` scores the runs done so far.
+
+    A pause changes nothing (``_advance``): a result after k runs is exactly the whole evaluation's first k runs,
+    and carrying on to the end gives exactly ``evaluate``'s result. So a caller can score several policies on a
+    protocol's first runs and finish only the one it keeps, paying for the shared runs once (the search's ε_test
+    screens finish the chosen screen as the official evaluation). Needs a policy the loop runs compiled
+    (``compiled``/``pstate``, ``run_world`` or a built-in) and a sequential protocol (v2-official, v1-original).
+    """
+
+    def __init__(
+        self,
+        config: EngineConfig,
+        policy: Any,
+        protocol: str = V2_OFFICIAL,
+        *,
+        seed: int | None = None,
+        runs: int | None = None,
+        frames: int | None = None,
+        stream_state: int | None = None,
+        policy_name: str | None = None,
+    ) -> None:
+        proto, runs, frames = _resolve(config, protocol, runs, frames)
+        if not proto.sequential:
+            sequential = ", ".join(p.name for p in PROTOCOLS.values() if p.sequential)
+            raise ConfigError(f"protocol: '{protocol}' runs independent worlds; pausable evaluations are "
+                              f"sequential ({sequential}): use evaluate()")  # fmt: skip
+        compiled = isinstance(policy, BoundPolicy) or any(
+            getattr(policy, a, None) is not None for a in ("run_world", "compiled")
+        )
+        if not compiled:
+            raise ConfigError("policy: a pausable evaluation drives a compiled policy (compiled/pstate, run_world "
+                              "or a built-in); evaluate() drives Python policies")  # fmt: skip
+        self.protocol = protocol
+        self.config = config
+        self.policy = policy
+        self.seed = proto.seed if seed is None else seed
+        self.runs = runs
+        self.frames = frames
+        self.official_size = runs == proto.runs and frames == proto.frames
+        self.name = str(policy_name or getattr(policy, "name", None) or type(policy).__name__)
+        self.sim = _sequential_sim(config, protocol, self.seed, runs, frames, stream_state)
+        self.wall_seconds = 0.0
+
+    @property
+    def runs_done(self) -> int:
+        return int(self.sim.ints[0, I_RUNS_DONE])
+
+    @property
+    def done(self) -> bool:
+        return self.sim.done
+
+    def advance(self, runs: int | None = None, progress: ProgressFn | None = None) -> int:
+        """Drive ``runs`` more runs (None: to the end; never past it); returns the runs done.
+        ``progress(frames done, frames of the whole evaluation)`` as ``evaluate``'s."""
+        if runs is not None and runs < 0:
+            raise ConfigError(f"runs: must be ≥ 0, got {runs}")
+        until = self.runs if runs is None else min(self.runs, self.runs_done + runs)
+        start = time.perf_counter()
+        _advance(self.sim, self.policy, until, progress)
+        self.wall_seconds += time.perf_counter() - start
+        return self.runs_done
+
+    def result(self) -> EvalResult:
+        """The runs done so far, scored (the whole evaluation's ``EvalResult`` once ``done``)."""
+        n = self.runs_done
+        if n == 0:
+            raise RuntimeError("SequentialEvaluation.result(): no run done yet; advance() first")
+        return EvalResult(
+            protocol=self.protocol,
+            ruleset=self.config.ruleset,
+            policy=self.name,
+            seed=self.seed,
+            runs=n,
+            frames=self.frames,
+            other_agents=self.config.other_agents,
+            scores=self.sim.scores.reshape(-1)[:n].tolist(),
+            ego_scores=self.sim.ego_scores.reshape(-1)[:n].tolist(),
+            wall_seconds=self.wall_seconds,
+            official_size=self.official_size and n == self.runs,
+        )
 
 
 def _drive(sim: Simulator, policy: Callable[[Observation], Any], progress: ProgressFn | None, total: int) -> None:

@@ -10,7 +10,6 @@ replays are measured at their own ε_test; the cost model prices the screens; th
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -83,6 +82,8 @@ def test_each_rung_is_scored_at_its_best_screen_and_is_a_standalone_training() -
         assert rung[keys.EPSILON_TEST] == best[0]
         assert evaluate_official(net, alone.replace(epsilon_test_time=best[0])).median_site == rung[keys.SCORE]
         assert trained_rung_config(TINY, rung[keys.BUDGET], rungs).epsilon_test_time == best[0]
+    evaluated = len(rungs) * (len(GRID) * 50 + 500 - 50) * 2000  # the chosen screen's runs are not run again
+    assert outcome.attrs[keys.FRAMES_SIMULATED] == sum(r[keys.FRAMES] for r in rungs) + evaluated
     top = TrainConfig.from_mapping(outcome.attrs[keys.CONFIG])
     assert top.epsilon_test_time == rungs[-1][keys.EPSILON_TEST]
     assert outcome.attrs[keys.SETTINGS]["opt"]["epsilon_test_time"] == top.epsilon_test_time
@@ -90,24 +91,62 @@ def test_each_rung_is_scored_at_its_best_screen_and_is_a_standalone_training() -
     assert again.value == outcome.value
 
 
-def test_choose_epsilon_breaks_ties_by_the_mean_then_the_smaller_value(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The site's median ranks the screens, then the mean, then the smaller ε_test; each screen runs the protocol's
-    first ``screen_runs`` runs and the frames count them all."""
-    import autotune
+def test_choose_epsilon_breaks_ties_by_the_mean_then_the_smaller_value() -> None:
+    """The site's median ranks the screens, then the mean, then the smaller ε_test."""
+    screens = [[0.0, 73.0, 72.0], [0.1, 74.0, 72.5], [0.2, 74.0, 72.9], [0.3, 74.0, 72.9], [0.5, 73.9, 73.5]]
+    assert choose_epsilon(screens) == 2  # 74.0 at 0.1, 0.2 and 0.3: the higher mean (72.9) at 0.2 and 0.3, then 0.2
+    assert choose_epsilon([[0.4, 70.0, 70.0], [0.0, 70.0, 70.0]]) == 1
+    assert choose_epsilon([[0.0, 70.0, 71.0]]) == 0
 
-    by_epsilon = {0.0: (73.0, 72.0), 0.1: (74.0, 72.5), 0.2: (74.0, 72.9), 0.3: (74.0, 72.9), 0.5: (73.9, 73.5)}
-    calls: list[tuple[float, int | None]] = []
 
-    def fake(net: Any, config: TrainConfig, *, protocol: str, runs: int | None = None, progress: Any = None) -> Any:
-        calls.append((config.epsilon_test_time, runs))
-        median, mean = by_epsilon[config.epsilon_test_time]
-        return dataclasses.make_dataclass("Ev", ["median_site", "mean", "runs", "frames"])(median, mean, runs, 2000)
+@pytest.mark.parametrize(("ruleset", "screen_runs"), [("v2", 50), ("v2", 37), ("v1", 3)])
+def test_screens_are_the_protocols_first_runs_and_the_chosen_one_finishes_as_the_official_score(
+    ruleset: str, screen_runs: int
+) -> None:
+    """``screen_epsilons``: each screen is ``evaluate_official(…, runs=n)`` at its ε_test, to the digit; ``finish``
+    carries the chosen one on to exactly ``evaluate_official``'s whole evaluation (scores, greedy choices), so
+    the screened runs are not run again; ``frames`` counts what was simulated."""
+    from autotune import screen_epsilons
 
-    monkeypatch.setattr(autotune, "evaluate_official", fake)
-    epsilon, screens, frames = choose_epsilon(object(), TINY, "v2-official", tuple(by_epsilon), 20)
-    assert epsilon == 0.2  # 74.0 at 0.1, 0.2 and 0.3: the higher mean (72.9) at 0.2 and 0.3, then the smaller
-    assert screens == [[e, m, a] for e, (m, a) in by_epsilon.items()]
-    assert calls == [(e, 20) for e in by_epsilon] and frames == 5 * 20 * 2000
+    if ruleset == "v2":
+        config = TINY
+    else:
+        config = TrainConfig(
+            ruleset="v1", lanes_side=0, patches_ahead=2, train_iterations=400, temporal_window=0,
+            experience_size=200, start_learn_threshold=50, layers="fc:4:relu", batch_size=8,
+        )  # fmt: skip
+    net = train(rung_config(config, 400) if ruleset == "v2" else config, 3, quick_eval=False).convnet()
+    screened = screen_epsilons(net, config, GRID, screen_runs)
+    assert screened.grid == GRID and screened.runs == screen_runs
+    for epsilon, screen in zip(GRID, screened.screens, strict=True):
+        alone = evaluate_official(net, config.replace(epsilon_test_time=epsilon), runs=screen_runs)
+        assert (screen.scores, screen.ego_scores) == (alone.scores, alone.ego_scores)
+    frames = screened.screens[0].frames
+    assert screened.frames == len(GRID) * screen_runs * frames
+    greedy, want_greedy = np.zeros(5, dtype=np.int64), np.zeros(5, dtype=np.int64)
+    whole = screened.finish(1, greedy_actions=greedy)
+    want = evaluate_official(net, config.replace(epsilon_test_time=GRID[1]), greedy_actions=want_greedy)
+    assert (whole.scores, whole.median_site, whole.official_size) == (want.scores, want.median_site, True)
+    assert np.array_equal(greedy, want_greedy) and greedy.sum() > 0
+    assert screened.frames == (len(GRID) * screen_runs + want.runs - screen_runs) * frames
+    from autotune import dumps_net
+
+    assert screened.net_json == dumps_net(net)
+
+
+def test_screens_on_a_protocol_of_independent_worlds_evaluate_the_choice_from_the_start() -> None:
+    """The custom protocol cannot pause: its screens and its finish are plain evaluations, the same numbers."""
+    from autotune import screen_epsilons
+
+    net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
+    screened = screen_epsilons(net, TINY, GRID, 20, protocol="custom")
+    alone = evaluate_official(net, TINY.replace(epsilon_test_time=0.2), protocol="custom", runs=20)
+    assert screened.screens[1].scores == alone.scores
+    whole = screened.finish(1)
+    assert whole.scores == evaluate_official(net, TINY.replace(epsilon_test_time=0.2), protocol="custom").scores
+    assert screened.frames == (3 * 20 + whole.runs) * whole.frames
+    with pytest.raises(Exception, match=r"runs: a screen runs 1 to 500 of v2-official's runs, got 501"):
+        screen_epsilons(net, TINY, GRID, 501)
 
 
 def test_the_spec_key_its_refusals_and_round_trip() -> None:
@@ -206,14 +245,15 @@ def test_sampled_trials_screen_and_race_runs_keep_their_own_epsilon(tmp_path: Pa
 
 
 def test_the_cost_model_prices_the_screens(tmp_path: Path) -> None:
-    """Each screen adds one evaluation set-up and its share of the runs' work; the driver's model screens sampled
-    rungs at the spec's grid, a race run (``screened=False``) not; a refit keeps the grid."""
+    """Each screen adds its share of the runs' work, less the chosen screen's (the official evaluation carries it
+    on) and no set-up (the screens share the evaluation's); the driver's model screens sampled rungs at the spec's
+    grid, a race run (``screened=False``) not; a refit keeps the grid."""
     config = TINY.replace(epsilon_test_time=0.0)
     plain = features(config)
     screened = features(config, screen=(0.0, 0.5), screen_share=0.2)
-    assert screened[5] == plain[5] + 2  # set-ups
-    assert screened[6] == pytest.approx(plain[6] * 1.4)  # cars: 1 + 2 × 0.2 evaluations' worth
-    assert screened[8] == pytest.approx(plain[8] * (1.0 + 0.2 * (1.0 + 0.5)))  # input fills at each ε_test
+    assert screened[5] == plain[5]  # one set-up
+    assert screened[6] == pytest.approx(plain[6] * 1.2)  # cars: 0.8 + 2 × 0.2 evaluations' worth
+    assert screened[8] == pytest.approx(plain[8] * (0.8 + 0.2 * (1.0 + 0.5)))  # input fills at each ε_test
     assert np.array_equal(screened[:5], plain[:5])  # training work unchanged
     model = CostModel.prior().screening((0.0, 0.5), 0.2)
     assert model.predict(config) > model.predict(config, screened=False) == CostModel.prior().predict(config)

@@ -187,3 +187,48 @@ def test_evaluate_sets_numba_threads_for_the_call_only() -> None:
             raise RuntimeError("the block fails")
         assert numba.get_num_threads() == most
     assert numba.get_num_threads() == before
+
+
+@pytest.mark.parametrize(("ruleset", "protocol", "runs", "stops"), [
+    ("v2", "v2-official", 260, (37, 1, 100, 0)),
+    ("v1", "v1-original", 10, (3, 4)),
+])  # fmt: skip
+def test_a_paused_sequential_evaluation_is_the_whole_one(ruleset, protocol, runs, stops):  # noqa: ANN001
+    """``SequentialEvaluation`` pauses between runs: its result after k runs is the whole evaluation's first k
+    runs, and carried on to the end it is ``evaluate``'s result to the digit, wherever it paused (the world, the
+    ``Math.random`` stream and the policy's state carry over; the random policy draws from that stream)."""
+    from sim.protocols import SequentialEvaluation
+
+    config = EngineConfig(ruleset=ruleset, other_agents=2 if ruleset == "v2" else 0, lanes_side=1, patches_ahead=10)
+    policy = BUILTINS["random"].bind(config)
+    want = evaluate(config, policy, protocol, runs=runs)
+    paused = SequentialEvaluation(config, policy, protocol, runs=runs)
+    done = 0
+    for stop in stops:
+        done = paused.advance(stop)
+        if done:
+            part = paused.result()
+            assert part.runs == done and part.scores == want.scores[:done] and not part.official_size
+    assert done == sum(stops)
+    seen: list[tuple[int, int]] = []
+    assert paused.advance(progress=lambda d, t: seen.append((d, t))) == runs and paused.done
+    assert paused.advance(5) == runs  # never past the end
+    got = paused.result()
+    assert (got.scores, got.ego_scores, got.runs) == (want.scores, want.ego_scores, runs)
+    assert seen[-1] == (runs * want.frames, runs * want.frames)
+
+
+def test_a_paused_evaluation_needs_a_sequential_protocol_and_a_compiled_policy():
+    from sim.protocols import SequentialEvaluation
+
+    config = EngineConfig(ruleset="v2", lanes_side=1, patches_ahead=10)
+    policy = BUILTINS["random"].bind(config)
+    with pytest.raises(ConfigError, match="'custom' runs independent worlds; pausable evaluations are sequential"):
+        SequentialEvaluation(config, policy, "custom")
+    with pytest.raises(ConfigError, match="policy: a pausable evaluation drives a compiled policy"):
+        SequentialEvaluation(config, lambda obs: np.zeros(len(obs), dtype=np.int64), "v2-official")
+    paused = SequentialEvaluation(config, policy, "v2-official", runs=3)
+    with pytest.raises(RuntimeError, match="no run done yet"):
+        paused.result()
+    with pytest.raises(ConfigError, match="runs: must be ≥ 0"):
+        paused.advance(-1)

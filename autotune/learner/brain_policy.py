@@ -75,6 +75,7 @@ from sim.protocols import (
     V2_OFFICIAL,
     EvalResult,
     ProgressFn,
+    SequentialEvaluation,
     evaluate,
 )
 from sim.rng import mulberry32_advance
@@ -454,8 +455,33 @@ def evaluate_brain(
     return result
 
 
+def brain_evaluation(
+    net: ConvNet,
+    engine: EngineConfig,
+    temporal_window: int,
+    epsilon: float,
+    protocol: str = V2_OFFICIAL,
+    *,
+    seed: int | None = None,
+    runs: int | None = None,
+    name: str | None = None,
+    gauss_cache: int = 0,
+    engine_load: bool = True,
+) -> SequentialEvaluation:
+    """``evaluate_brain``'s evaluation, pausable between runs (``sim.protocols.SequentialEvaluation``; its
+    ``policy`` is the ``BrainPolicy``, whose ``greedy_actions`` count the runs done so far). Sequential
+    protocols only (v2-official, v1-original); seeded exactly as ``evaluate_brain`` seeds them."""
+    policy = BrainPolicy(net, engine, temporal_window, epsilon, name=name)
+    proto = PROTOCOLS.get(protocol)
+    n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
+    stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
+    return SequentialEvaluation(engine, policy, protocol, seed=seed, runs=runs, stream_state=stream_state,
+                                policy_name=policy.name)  # fmt: skip
+
+
 __all__ = [
     "BrainPolicy",
+    "brain_evaluation",
     "brain_policy",
     "engine_config",
     "evaluate_brain",

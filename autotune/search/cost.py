@@ -11,7 +11,8 @@ non-negative work terms whose coefficients are seconds per unit of work:
   (∝ (1 + other_agents) and ∝ params × (1 + other_agents)), and per greedy decision the input ``Vol``
   convnetjs allocates, whose Gaussian fill the exact evaluation replays draw for draw
   (∝ (1 + other_agents) × (1 − epsilon_test_time) × inputs: a wide view costs more than a wide net);
-  with ``[ladder] epsilon_test_grid`` each grid value's screen adds its share of those runs (and one set-up).
+  with ``[ladder] epsilon_test_grid`` each grid value's screen adds its share of those runs, less the chosen
+  screen's, which the official evaluation carries on from.
 
 ``CostModel.prior()`` holds coefficients measured on the 2-core reference machine (see
 ``PRIOR``); ``fit`` refits them by non-negative least squares on *relative* errors over the study's
@@ -73,18 +74,20 @@ def features(
     """The work terms of one rung of ``config`` (at its ``train_iterations``), see ``FEATURES``.
 
     ``screen``: the ε_test values its net was screened at before the official evaluation (``[ladder]
-    epsilon_test_grid``), each on ``screen_share`` of the protocol's runs: one more set-up each, and that share of
-    the runs' cars, forward passes and (at its ε) input fills."""
+    epsilon_test_grid``), each on ``screen_share`` of the protocol's runs: that share of the runs' cars, forward
+    passes and (at its ε) input fills. The screens share the evaluation's set-up, and the chosen one is carried on
+    into the official evaluation (``screen_epsilons``), which so runs only the rest of the protocol's runs."""
     b = float(config.train_iterations)
     cars = 1.0 + config.other_agents
     p = float(config.param_count)
     learning = max(0.0, b - config.start_learn_threshold)
     ev = 1.0 if evaluated else 0.0
     k = len(screen) if evaluated else 0
-    runs = ev + k * screen_share  # official evaluations' worth of runs
-    greedy = ev * (1.0 - config.epsilon_test_time) + (screen_share * sum(1.0 - e for e in screen) if k else 0.0)
+    rest = ev * (1.0 - screen_share) if k else ev  # the official runs after the chosen screen's
+    runs = rest + k * screen_share  # official evaluations' worth of runs
+    greedy = rest * (1.0 - config.epsilon_test_time) + (screen_share * sum(1.0 - e for e in screen) if k else 0.0)
     return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,
-                     ev + k, runs * cars, runs * p * cars, cars * greedy * config.net_inputs])  # fmt: skip
+                     ev, runs * cars, runs * p * cars, cars * greedy * config.net_inputs])  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

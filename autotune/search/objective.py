@@ -221,7 +221,7 @@ def _run_ladder(
     """Climb the budget ladder: a fresh training per rung, each scored officially and reported at B_r/B_0."""
     import numpy
 
-    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, official_protocol
+    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, official_protocol, screen_epsilons
     from autotune.learner import train
     from autotune.search.ladder import rung_config, rung_seed
     from sim.policies import NUM_ACTIONS
@@ -260,21 +260,26 @@ def _run_ladder(
             limits.check(f"{where}: official evaluation at {done:,} of {total:,} frames")
 
         screens: list[list[float]] = []
-        if task.epsilon_test_grid:  # ε_test acts only at test time: choose it for this net, train nothing again
-            epsilon, screens, frames = choose_epsilon(
-                convnet, config, protocol, task.epsilon_test_grid, task.epsilon_test_screen_runs, eval_progress
-            )  # fmt: skip
-            attrs[keys.FRAMES_SIMULATED] += frames
-            config = config.replace(epsilon_test_time=epsilon)
-            top = top.replace(epsilon_test_time=epsilon)  # the trial's config: its last rung's choice
-            attrs.update({keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn()})
         greedy = numpy.zeros(NUM_ACTIONS, dtype=numpy.int64)
-        ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress, greedy_actions=greedy)
-        attrs[keys.FRAMES_SIMULATED] += ev.runs * ev.frames
+        if task.epsilon_test_grid:  # ε_test acts only at test time: choose it for this net, train nothing again
+            screened = screen_epsilons(convnet, config, task.epsilon_test_grid, task.epsilon_test_screen_runs,
+                                       protocol=protocol, progress=eval_progress)  # fmt: skip
+            screens = [[e, float(ev.median_site), float(ev.mean)]
+                       for e, ev in zip(screened.grid, screened.screens, strict=True)]  # fmt: skip
+            chosen = choose_epsilon(screens)
+            config = config.replace(epsilon_test_time=screened.grid[chosen])
+            top = top.replace(epsilon_test_time=screened.grid[chosen])  # the trial's config: its last rung's choice
+            attrs.update({keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn()})
+            ev = screened.finish(chosen, progress=eval_progress, greedy_actions=greedy)  # the screen's runs kept
+            attrs[keys.FRAMES_SIMULATED] += screened.frames
+            net_json = screened.net_json
+        else:
+            ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress, greedy_actions=greedy)
+            attrs[keys.FRAMES_SIMULATED] += ev.runs * ev.frames
+            net_json = dumps_net(convnet)
         score = float(ev.median_site)
         if not math.isfinite(score):  # pragma: no cover - scores are finite speeds
             return finish(FAILED, None, f"official score is not finite at {where}: {score!r}")
-        net_json = dumps_net(convnet)
         rung_nets[budget] = net_json
         rungs.append({
             keys.BUDGET: int(budget), keys.SEED: seed, keys.SCORE: score, keys.SECONDS: time.perf_counter() - t_rung,
@@ -311,33 +316,17 @@ def _run_ladder(
     return finish(COMPLETE, value, None, net_json=net_json, net_js=net_js)
 
 
-def choose_epsilon(
-    convnet: Any,
-    config: Any,
-    protocol: str,
-    grid: Sequence[float],
-    screen_runs: int,
-    progress: Callable[[int, int], None] | None = None,
-) -> tuple[float, list[list[float]], int]:
-    """``(ε_test, screens, frames)``: the grid value whose screen scored best, each screen's ``[ε, site median,
-    mean]``, and the frames they simulated.
+def choose_epsilon(screens: Sequence[Sequence[float]]) -> int:
+    """The index of the best of a net's ε_test screens (``[ε, site median, mean]`` each): the site's statistic,
+    then the mean, then the smaller ε.
 
-    A screen is the official protocol's first ``screen_runs`` runs at that ε_test (the same traffic and draws as
-    the whole evaluation's first runs), ranked by the site's statistic, then the mean, then the smaller ε. Why
-    per net: ε_test acts only at test time, so one training serves every value; searched as a training setting it
-    took a draw's luck to pair a net that learned with a small ε_test (measured: 93–99 % of a cold study's draws
-    sat at 0.4 or more, while every net that scored 74.5 drove with ε_test below 0.08)."""
-    from autotune import evaluate_official
-
-    screens: list[list[float]] = []
-    frames = 0
-    for epsilon in grid:
-        ev = evaluate_official(convnet, config.replace(epsilon_test_time=float(epsilon)), protocol=protocol,
-                               runs=screen_runs, progress=progress)  # fmt: skip
-        frames += ev.runs * ev.frames
-        screens.append([float(epsilon), float(ev.median_site), float(ev.mean)])
-    best = max(screens, key=lambda s: (s[1], s[2], -s[0]))
-    return best[0], screens, frames
+    A screen is the official protocol's first ``epsilon_test_screen_runs`` runs at that ε_test (the same traffic
+    and draws as the whole evaluation's first runs; ``autotune.screen_epsilons``), and the chosen screen is
+    carried on into the official evaluation. Why per net: ε_test acts only at test time, so one training serves
+    every value; searched as a training setting it took a draw's luck to pair a net that learned with a small
+    ε_test (measured: 93–99 % of a cold study's draws sat at 0.4 or more, while every net that scored 74.5 drove
+    with ε_test below 0.08)."""
+    return max(range(len(screens)), key=lambda i: (screens[i][1], screens[i][2], -screens[i][0]))
 
 
 STATIC_SHARE = 0.99

@@ -1064,13 +1064,20 @@ def run_arm(arm: str, seed: int, args: argparse.Namespace, ctx: dict[str, Any]) 
     return run
 
 
-def calibration_draws(spec: Any, n: int, seed: int, cap_s: float) -> tuple[list[dict[str, Any]], list[str], int]:
+def calibration_draws(
+    spec: Any, n: int, seed: int, cap_s: float, workers: int = 2
+) -> tuple[list[dict[str, Any]], list[str], int]:
     """Up to ``n`` affordable draws of the service's space: (jobs with each draw's top config, planned rungs and
-    their prior-predicted seconds; the refusals' causes; draws made). No training: the prior prices them."""
+    their prior-predicted seconds; the refusals' causes; draws made). No training: the prior prices them, and as
+    in a study no rung needs more memory than a worker may hold (``[study] max_trial_memory_gb`` or its default
+    for ``workers``)."""
     import optuna
 
     from autotune.search import space
-    from autotune.search.cost import CostModel, plan
+    from autotune.search.cost import CostModel, default_memory_cap, plan, rung_memory_bytes
+
+    gb = spec.study.max_trial_memory_gb
+    memory = int(gb * 1e9) if gb is not None else default_memory_cap(workers)
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
@@ -1088,7 +1095,11 @@ def calibration_draws(spec: Any, n: int, seed: int, cap_s: float) -> tuple[list[
         except Exception as exc:  # a combination deepqlearn rejects (the driver fails such a trial)
             refused.append(f"invalid: {str(exc).splitlines()[0]}")
             continue
-        p = plan(configs, model, cap_s)
+        held = next((i for i, c in enumerate(configs) if rung_memory_bytes(c) > memory), len(configs))
+        if held < 2:
+            refused.append(f"rung {held} over the memory cap ({rung_memory_bytes(configs[held]) / 1e9:,.1f} GB)")
+            continue
+        p = plan(configs[:held], model, cap_s)
         if p is None or len(p.budgets) < 2:
             first = model.predict(configs[0])
             refused.append(f"{'rung 0' if p is None else 'rung 1'} over the cap (rung 0 predicted {first:,.0f} s)")
@@ -1110,7 +1121,7 @@ def run_calibration(n: int, args: argparse.Namespace, ctx: dict[str, Any]) -> di
         return {"skipped": f"{ctx['space']} has no [ladder]: no rungs to calibrate"}
     cap = args.calibration_cap or float(spec.study.cost_cap_s)
     t0 = time.time()
-    jobs, refused, drawn = calibration_draws(spec, n, args.calibration_seed, cap)
+    jobs, refused, drawn = calibration_draws(spec, n, args.calibration_seed, cap, args.workers)
     with Pool(min(args.workers, max(1, len(jobs)))) as pool:
         results = pool.run(jobs)
     sets, unfinished, errors = [], [], []

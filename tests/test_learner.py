@@ -140,6 +140,28 @@ def test_replay_appends_then_replaces_random_slots():
         assert list(changed) == [slot] and b._R[slot] == r - 1.0 and b.n_exp == 4
 
 
+def test_replay_memory_holds_what_the_schedule_can_fill_and_grows_if_driven_longer():
+    """The replay memory is allocated for ``replay_rows`` = min(experience_size, the schedule's ego decisions) —
+    allocated whole, one draw asked for 20 GB at its 10k rung — and a brain driven past its schedule grows it:
+    the same seeds and inputs give the same decisions, memory and weights as a brain allocated for all of it."""
+    c = tiny(experience_size=500, start_learn_threshold=20, train_iterations=10)
+    assert c.ego_decisions == c.schedule[0] * -(-c.schedule[1] // 30) and c.replay_rows == min(500, c.ego_decisions)
+    assert c.replay_bytes == c.replay_rows * (2 * c.net_inputs + 6) * 4
+    assert c.replace(dtype="float64").replay_bytes == 2 * c.replay_bytes
+    assert tiny(experience_size=5, start_learn_threshold=2, train_iterations=10).replay_rows == 5
+    small, whole = DeepQLearner(c, 3), DeepQLearner(c.replace(train_iterations=100_000), 3)
+    assert small.SS.shape[1] == c.replay_rows < whole.SS.shape[1] == 500
+    rng = np.random.default_rng(0)
+    for t in range(4 * c.replay_rows):
+        x, r = rng.normal(size=2), float(rng.normal())
+        assert small.learn(x, r) == whole.learn(x, r), t
+    n = small.n_exp
+    assert n > c.replay_rows and small.SS.shape[1] >= n
+    assert torch.equal(small.SS[:, :n], whole.SS[:, :n]) and np.array_equal(small._R[:n], whole._R[:n])
+    for a, b in zip(small.module.parameters(), whole.module.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
 def test_learning_starts_above_threshold_one_update_per_decision():
     c = tiny(experience_size=20, start_learn_threshold=5)
     b = DeepQLearner(c, 0)

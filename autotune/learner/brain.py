@@ -95,15 +95,13 @@ class DeepQLearner:
         self.tw = tw
         self.v2 = config.ruleset == "v2"
         # replay memory: SS[0] = s₀ rows, SS[1] = s₁ rows; OH = one-hot(a₀); R = r₀
-        size = config.experience_size
-        self.SS = torch.zeros(2, size, D, dtype=tdtype)
-        self.OH = torch.zeros(size, NUM_ACTIONS, dtype=tdtype)
-        self.R = torch.zeros(size, dtype=tdtype)
-        self._SS = self.SS.numpy()
-        self._OH = self.OH.numpy()
-        self._R = self.R.numpy()
-        self.experience_size = size
+        self._tdtype = tdtype
+        self.experience_size = config.experience_size
         self.n_exp = 0
+        self.SS: torch.Tensor
+        self.OH: torch.Tensor
+        self.R: torch.Tensor
+        self._alloc(config.replay_rows)  # what the training can fill, not experience_size
         B = config.batch_size
         self._idx = np.zeros(B, dtype=np.int64)
         self._idx_t = torch.from_numpy(self._idx)
@@ -133,6 +131,20 @@ class DeepQLearner:
         self._reward_sum = 0.0
         self._reward_n = 0
         self.last_q: np.ndarray | None = None
+
+    def _alloc(self, rows: int) -> None:
+        """(Re)allocate the replay memory with ``rows`` rows, keeping the entries stored so far."""
+        D = self.config.net_inputs
+        SS = torch.zeros(2, rows, D, dtype=self._tdtype)
+        OH = torch.zeros(rows, NUM_ACTIONS, dtype=self._tdtype)
+        R = torch.zeros(rows, dtype=self._tdtype)
+        n = self.n_exp
+        if n:
+            SS[:, :n] = self.SS[:, :n]
+            OH[:n] = self.OH[:n]
+            R[:n] = self.R[:n]
+        self.SS, self.OH, self.R = SS, OH, R
+        self._SS, self._OH, self._R = SS.numpy(), OH.numpy(), R.numpy()
 
     # -- draws ----------------------------------------------------------------------------------
     def _sample_indices(self) -> None:
@@ -165,6 +177,8 @@ class DeepQLearner:
                 n = self.n_exp
                 if n < self.experience_size:
                     slot = n
+                    if slot == self.SS.shape[1]:  # more decisions than the schedule's: grow (not in train)
+                        self._alloc(min(self.experience_size, 2 * slot))
                     self.n_exp = n + 1
                 else:
                     slot = int(self.experience_size * self._uniform())  # random replacement

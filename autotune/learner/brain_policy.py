@@ -410,6 +410,26 @@ def evaluate_net(
     )
 
 
+def _prepared(
+    net: ConvNet,
+    engine: EngineConfig,
+    temporal_window: int,
+    epsilon: float,
+    protocol: str,
+    seed: int | None,
+    runs: int | None,
+    name: str | None,
+    gauss_cache: int,
+    engine_load: bool,
+) -> tuple[BrainPolicy, int | None]:
+    """The brain an evaluation drives, built as the protocol's harness builds it, and the ``Math.random`` state
+    the protocol starts from (``BrainPolicy.prepare``)."""
+    proto = PROTOCOLS.get(protocol)  # (sim.protocols.evaluate refuses a protocol of the other engine)
+    policy = BrainPolicy(net, engine, temporal_window, epsilon, name=name)
+    n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
+    return policy, policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
+
+
 def evaluate_brain(
     net: ConvNet,
     engine: EngineConfig,
@@ -434,10 +454,8 @@ def evaluate_brain(
     draws follow the brain build (evaluate.js: yes; the learner_scores.json harness: no).
     ``greedy_actions`` (5 int64s), when given, receives ``BrainPolicy.greedy_actions`` of the evaluation.
     """
-    proto = PROTOCOLS.get(protocol)  # (sim.protocols.evaluate refuses a protocol of the other engine)
-    policy = BrainPolicy(net, engine, temporal_window, epsilon, name=name)
-    n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
-    stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
+    policy, stream_state = _prepared(net, engine, temporal_window, epsilon, protocol, seed, runs, name,
+                                     gauss_cache, engine_load)  # fmt: skip
     result = evaluate(
         engine,
         policy,
@@ -471,10 +489,8 @@ def brain_evaluation(
     """``evaluate_brain``'s evaluation, pausable between runs (``sim.protocols.SequentialEvaluation``; its
     ``policy`` is the ``BrainPolicy``, whose ``greedy_actions`` count the runs done so far). Sequential
     protocols only (v2-official, v1-original); seeded exactly as ``evaluate_brain`` seeds them."""
-    policy = BrainPolicy(net, engine, temporal_window, epsilon, name=name)
-    proto = PROTOCOLS.get(protocol)
-    n_runs = runs if runs is not None else (proto.runs if proto is not None else None)
-    stream_state = policy.prepare(protocol, seed, n_runs, gauss_cache, engine_load)
+    policy, stream_state = _prepared(net, engine, temporal_window, epsilon, protocol, seed, runs, name,
+                                     gauss_cache, engine_load)  # fmt: skip
     return SequentialEvaluation(engine, policy, protocol, seed=seed, runs=runs, stream_state=stream_state,
                                 policy_name=policy.name)  # fmt: skip
 

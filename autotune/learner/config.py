@@ -159,6 +159,9 @@ def _layer_to_dict(layer: spec.Layer) -> dict[str, Any]:
     return out
 
 
+DECISION_FRAMES = 30  # a car decides every 30 frames (both engines: engine_spec.md, spec v2)
+
+
 def run_schedule(train_iterations: int) -> tuple[int, int]:
     """train.js / train_webworker.js run split: ``(runs executed, frames per run)`` (spec §9, v2 §12).
 
@@ -265,6 +268,26 @@ class TrainConfig:
     def schedule(self) -> tuple[int, int]:
         """(runs, frames per run) of the training protocol."""
         return run_schedule(self.train_iterations)
+
+    @property
+    def ego_decisions(self) -> int:
+        """Ego decisions of the training protocol: one every ``DECISION_FRAMES`` frames of each run."""
+        runs, frames = self.schedule
+        return runs * -(-frames // DECISION_FRAMES)
+
+    @property
+    def replay_rows(self) -> int:
+        """Rows of replay memory the training fills at most: ``experience_size``, or fewer when the schedule makes
+        fewer ego decisions (one transition is stored per decision). The learner allocates this many, as
+        deepqlearn's array grows: allocated whole, a 10k rung with ``experience_size`` 309,884 on 8,167 inputs
+        asked for 20 GB, and Ray's memory monitor killed its worker."""
+        return max(1, min(self.experience_size, self.ego_decisions))
+
+    @property
+    def replay_bytes(self) -> int:
+        """Bytes of that replay memory (s₀ and s₁ rows of ``net_inputs``, the action's one-hot, the reward)."""
+        itemsize = 8 if self.dtype == "float64" else 4
+        return self.replay_rows * (2 * self.net_inputs + NUM_ACTIONS + 1) * itemsize
 
     @property
     def total_frames(self) -> int:

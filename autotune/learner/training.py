@@ -315,8 +315,7 @@ def _train(config: TrainConfig, seeds: _Seeds, reporting: _Reporting) -> TrainRe
         sim.seed_stream(start_state)  # train.js: the runs start right after the brain build
     if original is not None:
         original.attach(sim.mrand)
-    decisions_per_run = -(-frames_per_run // 30)
-    total_decisions = runs * decisions_per_run
+    total_decisions = config.ego_decisions
     total_frames = runs * frames_per_run
     marks = [max(1, round(total_decisions * (k + 1) / reporting.points)) for k in range(reporting.points)]
     progress_every = max(1, min(1000, total_decisions // 100))  # wall-time limits need a beat on big nets too

@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Iterable, Sequence
 
 import numpy as np
 
 from autotune import TrainConfig
 
-__all__ = ["FEATURES", "PRIOR", "CostModel", "features", "Observation"]
+__all__ = ["FEATURES", "PRIOR", "CostModel", "features", "Observation", "rung_memory_bytes", "default_memory_cap"]
 
 FEATURES = (
     "decisions",  # B: simulator step + bookkeeping of the ego
@@ -88,6 +89,28 @@ def features(
     greedy = rest * (1.0 - config.epsilon_test_time) + (screen_share * sum(1.0 - e for e in screen) if k else 0.0)
     return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,
                      ev, runs * cars, runs * p * cars, cars * greedy * config.net_inputs])  # fmt: skip
+
+
+WEIGHT_COPIES = 8
+"""Copies of the net's parameters a training holds, counted generously: torch's weights and gradients, the trainer's
+state (adadelta keeps two), the float64 forward copy and the batch buffers."""
+
+
+def rung_memory_bytes(config: TrainConfig) -> int:
+    """Memory one rung of ``config`` allocates beyond the worker's own: the replay memory (``replay_bytes``: the
+    rows its schedule can fill) and ``WEIGHT_COPIES`` float64 copies of the net. A rung's memory is not priced in
+    seconds — a draw the machine cannot hold is refused whatever its time (``[study] max_trial_memory_gb``)."""
+    return int(config.replay_bytes + WEIGHT_COPIES * 8 * config.param_count)
+
+
+def default_memory_cap(workers: int, share: float = 0.6) -> int:
+    """Bytes a rung may use when the spec sets no cap: ``share`` of this machine's memory, split among the
+    ``workers`` that train side by side (the rest: the workers' own ~1–2 GB each, the driver, Ray, the OS)."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):  # pragma: no cover - not a POSIX system
+        total = 16 * 2**30
+    return int(share * total / max(1, workers))
 
 
 @dataclasses.dataclass(frozen=True)

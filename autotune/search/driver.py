@@ -60,7 +60,7 @@ from optuna.trial import FrozenTrial, Trial, TrialState
 from autotune import TrainConfig
 from autotune.search import keys, racing, space
 from autotune.search.balance import BalancedSampler, conditional_startup
-from autotune.search.cost import CostModel, Observation, Plan, features, plan
+from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
 from autotune.search.denoise import DenoisedSampler
 from autotune.search.gate import CostGatedSampler, distributions
 from autotune.search.ladder import Ladder, trained_rung_config
@@ -380,8 +380,11 @@ class Driver:
             configs = self._rung_configs(params)
         except ConfigError:
             return None
+        gated = configs[: self.spec.gated_rungs]
+        if len(self._held(gated)) < len(gated):  # more memory than a worker may hold: refused whatever its time
+            return None
         model = self._model()
-        return sum(model.predict(c) for c in configs[: self.spec.gated_rungs])
+        return sum(model.predict(c) for c in gated)
 
     def _model(self) -> CostModel:
         """The cost model refitted to the study's finished rungs (when their number changed)."""
@@ -567,6 +570,28 @@ class Driver:
             if cost * RACE_MARGIN <= left:
                 return b, lower, cost
         return None
+
+    def _memory_cap(self) -> int:
+        """Bytes one rung may allocate (``[study] max_trial_memory_gb``, else ``cost.default_memory_cap``)."""
+        gb = self.spec.study.max_trial_memory_gb
+        return int(gb * 1e9) if gb is not None else default_memory_cap(self.spec.resources.workers)
+
+    def _held(self, configs: list[TrainConfig]) -> list[TrainConfig]:
+        """The rungs from the first up to the last whose memory fits the cap (the ladder stops below the first that
+        does not: a worker the machine cannot hold is killed, and its trial's finished rungs with it)."""
+        cap = self._memory_cap()
+        held: list[TrainConfig] = []
+        for config in configs:
+            if rung_memory_bytes(config) > cap:
+                break
+            held.append(config)
+        return held
+
+    def _over_memory(self, config: TrainConfig) -> str:
+        need, cap = rung_memory_bytes(config) / 1e9, self._memory_cap() / 1e9
+        return (f"refused: its {config.train_iterations:,}-iteration rung needs {need:,.1f} GB (replay memory "
+                f"{config.replay_rows:,} × {config.net_inputs:,} inputs), over the memory cap of {cap:,.1f} GB "
+                f"([study] max_trial_memory_gb)")  # fmt: skip
 
     def _draw_cap(self) -> float:
         """The gate's cap for the next draw: the study's cost cap, or the time left if less (a ladder the deadline
@@ -844,11 +869,16 @@ class Driver:
             params = space.sample(trial, self.spec)
             if full is not None:
                 config = TrainConfig.from_mapping(full)
+                if not self._held([config]):
+                    raise _Refused(self._over_memory(config))
                 rungs: tuple[int, ...] = (config.train_iterations,) if race and self.spec.ladder else ()
                 cost = self._model().predict(config, screened=False)  # measured with its own ε_test
                 predicted: Plan | None = Plan((config.train_iterations,), (cost,))
             else:
-                configs = self._rung_configs(params)
+                every = self._rung_configs(params)
+                configs = self._held(every)  # never a rung the worker cannot hold
+                if not configs:
+                    raise _Refused(self._over_memory(every[0]))
                 top = trial.user_attrs.get(keys.LADDER_TOP)
                 # the top: the highest rung that fits the cap and the time left (a rung the deadline would stop
                 # is never started); at least the rungs the gate priced when the deadline is far
@@ -926,7 +956,7 @@ class Driver:
             # starts race runs instead, once this trial's result is stored: it may be an entrant)
             self._launch_next(event.slot)
         if event.kind == "lost":
-            self._fail(run.trial, run.killed or event.cause, retryable=not run.killed)
+            self._fail(run.trial, run.killed or event.cause, retryable=not run.killed and event.retry)
             self._enqueue_retries()
         else:
             self._finish(run.trial, event.outcome)

@@ -4,7 +4,7 @@ Five tables, every key optional unless said otherwise::
 
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
-                  balance, balance_min_share, denoise, denoise_quantile
+                  balance, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -206,6 +206,10 @@ class StudySection:
     denoise_quantile: float | None = None
     """With denoise: value each trial at this quantile of its neighbourhood's scores (0.9: a region's upper tail,
     which a best single net is drawn from), not their mean (None)."""
+    max_trial_memory_gb: float | None = None
+    """Memory cap [GB] of one rung (its replay memory and net, ``cost.rung_memory_bytes``): a draw whose rungs up
+    to [ladder] min_top need more is refused and redrawn, and no trial climbs to a rung that does (None: 60 % of
+    the driver machine's memory shared among the workers)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -576,9 +580,12 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         if not denoise:
             raise where.error("denoise_quantile", "needs denoise = true (it sets how denoise values a trial)",
                               "add denoise = true, or remove denoise_quantile")  # fmt: skip
+    memory = table.get("max_trial_memory_gb")
+    if memory is not None:
+        memory = _pos_float(memory, f"{src}: [study] max_trial_memory_gb")
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
-        startup, cap, race, race_configs, race_seeds, tuple(balance), share, denoise, quantile,
+        startup, cap, race, race_configs, race_seeds, tuple(balance), share, denoise, quantile, memory,
     )  # fmt: skip
 
 

@@ -113,6 +113,8 @@ class Event:
     outcome: TrialOutcome | None = None
     cause: str = ""
     """Why a worker was lost (``"lost"``)."""
+    retry: bool = True
+    """``"lost"``: whether the trial is worth retrying (not after an out-of-memory kill: it would ask again)."""
 
 
 def _descendants(pid: int) -> list[int]:
@@ -320,6 +322,13 @@ class WorkerPool:
             slot, kind = self._pending.pop(ref)
             try:
                 value = ray.get(ref)
+            except ray.exceptions.OutOfMemoryError as exc:  # Ray's memory monitor killed it: the same again would be
+                events.append(Event("lost", slot, retry=False, cause=(
+                    f"out of memory: Ray's memory monitor killed {self._describe(slot, exc)}; the trial is not "
+                    f"retried (its settings would ask for the same memory): lower [study] max_trial_memory_gb"
+                )))  # fmt: skip
+                self._replace(slot)
+                continue
             except (ray.exceptions.RayActorError, ray.exceptions.WorkerCrashedError) as exc:
                 events.append(Event("lost", slot, cause=f"worker lost: {self._describe(slot, exc)}"))
                 self._replace(slot)

@@ -145,6 +145,7 @@ class DeepQLearner:
             R[:n] = self.R[:n]
         self.SS, self.OH, self.R = SS, OH, R
         self._SS, self._OH, self._R = SS.numpy(), OH.numpy(), R.numpy()
+        self._rows = rows
 
     # -- draws ----------------------------------------------------------------------------------
     def _sample_indices(self) -> None:
@@ -177,7 +178,7 @@ class DeepQLearner:
                 n = self.n_exp
                 if n < self.experience_size:
                     slot = n
-                    if slot == self.SS.shape[1]:  # more decisions than the schedule's: grow (not in train)
+                    if slot == self._rows:  # more decisions than the schedule's: grow (not in train)
                         self._alloc(min(self.experience_size, 2 * slot))
                     self.n_exp = n + 1
                 else:

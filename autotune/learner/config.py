@@ -42,10 +42,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from autotune.convnet import spec
 from autotune.convnet.settings import Settings, read, write_nested
 from sim import fields
 from sim.config import ConfigError, EngineConfig, did_you_mean, input_size, nearest_key_error, record
+from sim.engine_v2 import DECISION_PERIOD  # the same 30 frames in both engines
 
 __all__ = [
     "ConfigError",
@@ -159,9 +162,6 @@ def _layer_to_dict(layer: spec.Layer) -> dict[str, Any]:
     return out
 
 
-DECISION_FRAMES = 30  # a car decides every 30 frames (both engines: engine_spec.md, spec v2)
-
-
 def run_schedule(train_iterations: int) -> tuple[int, int]:
     """train.js / train_webworker.js run split: ``(runs executed, frames per run)`` (spec §9, v2 §12).
 
@@ -271,9 +271,9 @@ class TrainConfig:
 
     @property
     def ego_decisions(self) -> int:
-        """Ego decisions of the training protocol: one every ``DECISION_FRAMES`` frames of each run."""
+        """Ego decisions of the training protocol: one every ``DECISION_PERIOD`` frames of each run."""
         runs, frames = self.schedule
-        return runs * -(-frames // DECISION_FRAMES)
+        return runs * -(-frames // DECISION_PERIOD)
 
     @property
     def replay_rows(self) -> int:
@@ -286,8 +286,7 @@ class TrainConfig:
     @property
     def replay_bytes(self) -> int:
         """Bytes of that replay memory (s₀ and s₁ rows of ``net_inputs``, the action's one-hot, the reward)."""
-        itemsize = 8 if self.dtype == "float64" else 4
-        return self.replay_rows * (2 * self.net_inputs + NUM_ACTIONS + 1) * itemsize
+        return self.replay_rows * (2 * self.net_inputs + NUM_ACTIONS + 1) * np.dtype(self.dtype).itemsize
 
     @property
     def total_frames(self) -> int:

@@ -226,11 +226,21 @@ def test_fast_paths_hold_to_the_replicas_decision_rules():
     from autotune.convnet.random import gauss_skip as fast_skip
     from autotune.learner.js_learner import gauss_skip as replica_skip
 
-    for state in (1, 2000, 123456789):
+    # the fast skip tests attempts in blocks of 64, 16 and 4: sizes at and around each block edge, states that wrap
+    # past 2³², and a run of calls that carries the cache flag and the state on
+    rng = np.random.default_rng(5)
+    states = [1, 2000, 123456789, 2**32 - 1, 2**32 - 0x6D2B79F5, *rng.integers(0, 2**32, 6).tolist()]
+    sizes = [0, 1, 2, 3, 7, 8, 9, 31, 32, 33, 63, 64, 127, 128, 129, 333, 1000, 4097]
+    for state in states:
         for cache in (0, 1):
-            for n in (0, 1, 2, 7, 64, 333):
+            for n in sizes:
                 a, b = np.array([state], dtype=np.int64), np.array([state], dtype=np.int64)
                 assert fast_skip(a, 0, cache, n) == replica_skip(b, 0, cache, n) and a[0] == b[0], (state, cache, n)
+    a, b = np.array([77], dtype=np.int64), np.array([77], dtype=np.int64)
+    fa = fb = 0
+    for n in rng.integers(0, 300, 2000).tolist():
+        fa, fb = fast_skip(a, 0, fa, n), replica_skip(b, 0, fb, n)
+        assert fa == fb and a[0] == b[0], n
 
 
 def _replica_decisions(config, seed: int, states: np.ndarray):

@@ -56,6 +56,7 @@ import math
 import numpy as np
 from numba import njit
 
+from autotune.convnet.random import gauss_skip as fast_gauss_skip
 from autotune.convnet.spec import FC, ConvNet, Input, Regression, Relu, Sigmoid, Tanh, fc_bias_prefs
 from autotune.learner.config import TrainConfig
 from sim import engine
@@ -149,16 +150,17 @@ def _uniform(mr: np.ndarray) -> float:
 
 @njit(cache=True, error_model="numpy")
 def _batch_indices(mr: np.ndarray, cache: np.ndarray, n: int, D: int, out: np.ndarray) -> None:
-    """deepqlearn's per-sample draws: ``⌊n·u⌋``, then the s₀ Vol and the s₁ ``policy()`` Vol (2·D Gaussians)."""
+    """deepqlearn's per-sample draws: ``⌊n·u⌋``, then the s₀ Vol and the s₁ ``policy()`` Vol (2·D Gaussians).
+    The torch learner's draws take the fast skip; the replica's own loop keeps the one-draw-at-a-time copy."""
     for k in range(out.shape[0]):
         out[k] = int(math.floor(mrand(mr, 0) * n))
-        cache[0] = gauss_skip(mr, 0, cache[0], D)
-        cache[0] = gauss_skip(mr, 0, cache[0], D)
+        cache[0] = fast_gauss_skip(mr, 0, cache[0], D)
+        cache[0] = fast_gauss_skip(mr, 0, cache[0], D)
 
 
 @njit(cache=True, error_model="numpy")
 def _vol(mr: np.ndarray, cache: np.ndarray, D: int) -> None:
-    cache[0] = gauss_skip(mr, 0, cache[0], D)
+    cache[0] = fast_gauss_skip(mr, 0, cache[0], D)
 
 
 class OriginalStream:

@@ -365,6 +365,11 @@ def loop_job(job: Mapping[str, Any]) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------
 
 
+def _stages(runs: Any) -> tuple[int, ...]:
+    """A job's ``epsilon_test_screen_runs``: a number (a job written before the halving) or its stages."""
+    return (int(runs),) if isinstance(runs, (int, float)) else tuple(int(r) for r in runs)
+
+
 def train_job(job: Mapping[str, Any]) -> dict[str, Any]:
     """Train + score one config from one seed through the service's objective (``run_trial``)."""
     from autotune.search.objective import TrialTask, run_trial
@@ -381,7 +386,7 @@ def train_job(job: Mapping[str, Any]) -> dict[str, Any]:
         rungs=rungs,  # a ladder: every rung trained and scored, never pruned
         reseed_rungs=bool(job.get("reseed", False)),  # each rung below the top from its own seed, as the study's
         epsilon_test_grid=tuple(float(e) for e in job.get("epsilon_test_grid", ())),  # ε_test per net, as the study's
-        epsilon_test_screen_runs=int(job.get("epsilon_test_screen_runs", 100)),
+        epsilon_test_screen_runs=_stages(job.get("epsilon_test_screen_runs", [50, 100])),
     )
     out = run_trial(task, lambda k, frames, score: False)
     return {
@@ -1083,7 +1088,8 @@ def calibration_draws(
     draws = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=seed))
     model = CostModel.prior()
     if spec.ladder_epsilon_grid:  # each rung screens its net at the grid, as the study's trials do
-        model = model.screening(spec.ladder_epsilon_grid, spec.ladder_epsilon_screen_share)
+        model = model.screening(spec.ladder_epsilon_grid, spec.ladder_epsilon_screen_share,
+                                spec.ladder_epsilon_carried_share)  # fmt: skip
     jobs: list[dict[str, Any]] = []
     refused: list[str] = []
     drawn = 0
@@ -1107,7 +1113,7 @@ def calibration_draws(
         top = configs[len(p.budgets) - 1]
         jobs.append({"kind": "train", "config": top.to_mapping(), "seed": _seed(seed, drawn), "rungs": list(p.budgets),
                      "reseed": spec.ladder_reseed, "epsilon_test_grid": list(spec.ladder_epsilon_grid),
-                     "epsilon_test_screen_runs": spec.ladder_epsilon_screen_runs,
+                     "epsilon_test_screen_runs": list(spec.ladder_epsilon_screen_runs),
                      "predicted_s": list(p.costs), "timeout_s": float(spec.study.trial_timeout_s)})  # fmt: skip
     return jobs, refused, drawn
 

@@ -26,7 +26,7 @@ from autotune.search.driver import Driver, race_entry
 from autotune.search.gate import distributions
 from autotune.search.ladder import rung_config, trained_rung_config
 from autotune.search.objective import COMPLETE, TrialTask, choose_epsilon, run_trial
-from autotune.search.spec import EPSILON_SCREEN_RUNS, SpecError, parse_spec
+from autotune.search.spec import EPSILON_SCREEN_RUNS, SpecError, default_screen_runs, parse_spec
 from autotune.search.storage import open_storage
 from tests.conftest import FakePool
 
@@ -65,7 +65,7 @@ def test_each_rung_is_scored_at_its_best_screen_and_is_a_standalone_training() -
     ε_test), chooses the best, and its score is the rung's standalone training scored officially at that ε_test;
     the trial's config carries its last rung's choice, so a retrain from config and seed gives its value."""
     task = TrialTask(number=0, config=TINY.to_mapping(), seed=7, rungs=(400, 1200), epsilon_test_grid=GRID,
-                     epsilon_test_screen_runs=50)  # fmt: skip
+                     epsilon_test_screen_runs=(50,))  # fmt: skip
     outcome = run_trial(task, lambda *a: False)
     assert outcome.state == COMPLETE, outcome.cause
     rungs = outcome.attrs[keys.RUNGS]
@@ -75,9 +75,9 @@ def test_each_rung_is_scored_at_its_best_screen_and_is_a_standalone_training() -
         net = train(alone, rung[keys.SEED], quick_eval=False).convnet()
         screens = rung[keys.EPSILON_SCREEN]
         assert [s[0] for s in screens] == list(GRID)
-        for epsilon, median, mean in screens:
+        for epsilon, median, mean, runs in screens:
             ev = evaluate_official(net, alone.replace(epsilon_test_time=epsilon), runs=50)
-            assert (median, mean) == (ev.median_site, ev.mean)
+            assert (median, mean, runs) == (ev.median_site, ev.mean, 50)
         best = max(screens, key=lambda s: (s[1], s[2], -s[0]))
         assert rung[keys.EPSILON_TEST] == best[0]
         assert evaluate_official(net, alone.replace(epsilon_test_time=best[0])).median_site == rung[keys.SCORE]
@@ -97,6 +97,9 @@ def test_choose_epsilon_breaks_ties_by_the_mean_then_the_smaller_value() -> None
     assert choose_epsilon(screens) == 2  # 74.0 at 0.1, 0.2 and 0.3: the higher mean (72.9) at 0.2 and 0.3, then 0.2
     assert choose_epsilon([[0.4, 70.0, 70.0], [0.0, 70.0, 70.0]]) == 1
     assert choose_epsilon([[0.0, 70.0, 71.0]]) == 0
+    # a halving's screens carry their runs: only those screened on the most runs are candidates
+    halved = [[0.0, 75.0, 74.0, 20], [0.1, 73.0, 72.0, 50], [0.2, 73.5, 72.0, 50], [0.4, 74.0, 73.0, 20]]
+    assert choose_epsilon(halved) == 2
 
 
 @pytest.mark.parametrize(("ruleset", "screen_runs"), [("v2", 50), ("v2", 37), ("v1", 3)])
@@ -145,14 +148,91 @@ def test_screens_on_a_protocol_of_independent_worlds_evaluate_the_choice_from_th
     whole = screened.finish(1)
     assert whole.scores == evaluate_official(net, TINY.replace(epsilon_test_time=0.2), protocol="custom").scores
     assert screened.frames == (3 * 20 + whole.runs) * whole.frames
-    with pytest.raises(Exception, match=r"runs: a screen runs 1 to 500 of v2-official's runs, got 501"):
+    with pytest.raises(Exception, match=r"runs: a screen runs 1 to 500 of v2-official's runs, in increasing "
+                       r"stages; got 501"):  # fmt: skip
         screen_epsilons(net, TINY, GRID, 501)
+    with pytest.raises(Exception, match=r"in increasing stages; got \[50, 50\]"):
+        screen_epsilons(net, TINY, GRID, (50, 50))
+
+
+HALVING_GRID = (0.0, 0.1, 0.2, 0.4, 0.6)
+
+
+@pytest.mark.parametrize("protocol", ["v2-official", "custom"])
+def test_a_halving_carries_the_better_half_on_and_the_best_finalist_finishes(protocol: str) -> None:
+    """``runs=(20, 50)``: every value on the first 20 runs, the better two of five (``screen_survivors``, by
+    ``screen_order``) on to 50; each screen is ``evaluate_official(…, runs=n)`` for the runs it reached, to the
+    digit, ``best`` is the best finalist, and ``finish`` gives the whole evaluation; a screen carried on is
+    continued (v2-official) or evaluated again (custom: its worlds are independent), and ``frames`` says which."""
+    from autotune import screen_epsilons
+    from autotune.learner.official import screen_order, screen_survivors
+
+    assert screen_survivors(5, 2) == (5, 2) and screen_survivors(3, 3) == (3, 1, 1) and screen_survivors(2, 1) == (2,)
+    net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
+    screened = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol)
+    assert screened.stages == (20, 50) and screened.runs == 50
+    first = {e: evaluate_official(net, TINY.replace(epsilon_test_time=e), protocol=protocol, runs=20)
+             for e in HALVING_GRID}  # fmt: skip
+    ranked = sorted(range(5), key=lambda i: screen_order(HALVING_GRID[i], first[HALVING_GRID[i]].median_site,
+                                                         first[HALVING_GRID[i]].mean), reverse=True)  # fmt: skip
+    assert screened.finalists == sorted(ranked[:2])
+    for i, (epsilon, screen) in enumerate(zip(HALVING_GRID, screened.screens, strict=True)):
+        runs = 50 if i in screened.finalists else 20
+        alone = evaluate_official(net, TINY.replace(epsilon_test_time=epsilon), protocol=protocol, runs=runs)
+        assert (screen.runs, screen.scores, screen.ego_scores) == (runs, alone.scores, alone.ego_scores)
+    best = max(screened.finalists, key=lambda i: screen_order(HALVING_GRID[i], screened.screens[i].median_site,
+                                                              screened.screens[i].mean))  # fmt: skip
+    assert screened.best == best
+    frames = screened.screens[0].frames
+    continued = protocol == "v2-official"
+    assert screened.frames == (5 * 20 + 2 * (30 if continued else 50)) * frames
+    whole = screened.finish(best)
+    want = evaluate_official(net, TINY.replace(epsilon_test_time=HALVING_GRID[best]), protocol=protocol)
+    assert (whole.scores, whole.median_site) == (want.scores, want.median_site)
+    assert screened.frames == (5 * 20 + 2 * (30 if continued else 50) + want.runs - (50 if continued else 0)) * frames
+
+
+def test_a_halving_trial_records_each_screens_runs_and_the_cost_model_reads_them(tmp_path: Path) -> None:
+    """A rung of a halving trial stores ``[ε, median, mean, runs]`` per value and is scored at the best finalist;
+    its cost observation prices each screen by the runs it ran."""
+    from autotune.search.driver import _observations
+
+    task = TrialTask(number=0, config=TINY.to_mapping(), seed=7, rungs=(400,), epsilon_test_grid=HALVING_GRID,
+                     epsilon_test_screen_runs=(20, 50))  # fmt: skip
+    outcome = run_trial(task, lambda *a: False)
+    assert outcome.state == COMPLETE, outcome.cause
+    (rung,) = outcome.attrs[keys.RUNGS]
+    screens = rung[keys.EPSILON_SCREEN]
+    assert sorted(s[3] for s in screens) == [20, 20, 20, 50, 50] and outcome.attrs[keys.EPSILON_SCREEN_RUNS] == 50
+    assert rung[keys.EPSILON_TEST] == screens[choose_epsilon(screens)][0]
+    assert max((s for s in screens if s[3] == 50), key=lambda s: (s[1], s[2], -s[0]))[0] == rung[keys.EPSILON_TEST]
+    net = train(rung_config(TINY, 400), rung[keys.SEED], quick_eval=False).convnet()
+    chosen = rung_config(TINY, 400).replace(epsilon_test_time=rung[keys.EPSILON_TEST])
+    assert evaluate_official(net, chosen).median_site == rung[keys.SCORE]
+    frames = rung[keys.FRAMES] + (5 * 20 + 2 * 30 + 500 - 50) * 2000
+    assert outcome.attrs[keys.FRAMES_SIMULATED] == frames
+    trial = optuna.trial.create_trial(
+        value=outcome.value, state=optuna.trial.TrialState.COMPLETE,
+        user_attrs={k: v for k, v in outcome.attrs.items() if k in (keys.CONFIG, keys.RUNGS, keys.OFFICIAL_PROTOCOL,
+                                                                   keys.EPSILON_SCREEN_RUNS)},
+    )  # fmt: skip
+    (obs,) = _observations(trial)
+    config = trained_rung_config(TrainConfig.from_mapping(outcome.attrs[keys.CONFIG]), 400, [rung])
+    shares = [s[3] / 500 for s in screens]
+    want = features(config, screen=[s[0] for s in screens], screen_share=shares)
+    assert np.allclose(obs.features, want)
+    assert want[6] == pytest.approx(features(config)[6] * (0.9 + (3 * 20 + 2 * 50) / 500))  # cars: runs' worth
 
 
 def test_the_spec_key_its_refusals_and_round_trip() -> None:
     spec = parse_spec(_data(), source="eps.toml")
-    assert spec.ladder_epsilon_grid == GRID and spec.ladder_epsilon_screen_runs == 50
+    assert spec.ladder_epsilon_grid == GRID and spec.ladder_epsilon_screen_runs == (50,)
     assert parse_spec(spec.to_dict(), source="eps.toml") == spec
+    assert spec.to_dict()["ladder"]["epsilon_test_screen_runs"] == 50  # one stage: stored as before the halving
+    halving = parse_spec(_data(epsilon_test_screen_runs=[20, 50]), source="eps.toml")
+    assert (
+        halving.ladder_epsilon_screen_runs == (20, 50) and parse_spec(halving.to_dict(), source="eps.toml") == halving
+    )
     off = _data()
     del off["ladder"]["epsilon_test_grid"], off["ladder"]["epsilon_test_screen_runs"]
     plain = parse_spec(off, source="off.toml")
@@ -160,7 +240,9 @@ def test_the_spec_key_its_refusals_and_round_trip() -> None:
     unsorted = _data(epsilon_test_grid=[0.5, 0.0, 0.5, 0.25])
     del unsorted["ladder"]["epsilon_test_screen_runs"]
     assert parse_spec(unsorted, source="u.toml").ladder_epsilon_grid == (0.0, 0.25, 0.5)
-    assert parse_spec(unsorted, source="u.toml").ladder_epsilon_screen_runs == EPSILON_SCREEN_RUNS
+    assert parse_spec(unsorted, source="u.toml").ladder_epsilon_screen_runs == EPSILON_SCREEN_RUNS == (50, 100)
+    assert default_screen_runs(500) == (50, 100) and default_screen_runs(10) == (5, 10)
+    assert default_screen_runs(1) == (1,)
 
     def refused(data: dict[str, Any], match: str) -> None:
         with pytest.raises(SpecError, match=match):
@@ -189,6 +271,11 @@ def test_the_spec_key_its_refusals_and_round_trip() -> None:
     refused(_data(epsilon_test_grid=[0.0, True]), r"must be a list of ε_test values")
     refused(_data(epsilon_test_screen_runs=501), r"\[ladder\] epsilon_test_screen_runs")
     refused(_data(epsilon_test_screen_runs=0), r"\[ladder\] epsilon_test_screen_runs")
+    refused(_data(epsilon_test_screen_runs=[]), r"epsilon_test_screen_runs .*: an empty list screens nothing")
+    refused(_data(epsilon_test_screen_runs=[50, 20]), r"\[50, 20\] must increase .*e.g. \[50, 100\]")
+    refused(_data(epsilon_test_screen_runs=[50, 50]), r"must increase")
+    refused(_data(epsilon_test_screen_runs=[50, 600]), r"600 is out of range; use 1–500")
+    refused(_data(epsilon_test_screen_runs=[50, "100"]), r"must be an integer")
     refused(_data(epsilon_test_gird=[0.0]), r"epsilon_test_grid")  # unknown key: the nearest valid one named
 
 
@@ -200,6 +287,11 @@ def test_resuming_with_another_grid_is_refused(tmp_path: Path) -> None:
     other = other.with_overrides(storage=str(tmp_path / "j.log"))
     with pytest.raises(SpecError, match=r"eps2.toml: \[ladder\] epsilon_test_grid: the study 'eps' was created"):
         Driver(other, open_storage(other.study.storage, other.study.name)).open_study()
+    # the screens' runs may change (a study from before the halving resumes with it): same grid, same values' meaning
+    halved = parse_spec(_data(epsilon_test_screen_runs=[20, 50]), source="eps3.toml")
+    halved = halved.with_overrides(storage=str(tmp_path / "j.log"))
+    study = Driver(halved, open_storage(halved.study.storage, halved.study.name)).open_study()
+    assert study.user_attrs[keys.STUDY_SPEC]["ladder"]["epsilon_test_screen_runs"] == [20, 50]
 
 
 def test_sampled_trials_screen_and_race_runs_keep_their_own_epsilon(tmp_path: Path) -> None:
@@ -213,7 +305,7 @@ def test_sampled_trials_screen_and_race_runs_keep_their_own_epsilon(tmp_path: Pa
     driver._t0 = time.perf_counter()  # noqa: SLF001
     assert driver._launch_next(0)  # noqa: SLF001
     task = driver.pool.tasks[0]
-    assert task.epsilon_test_grid == GRID and task.epsilon_test_screen_runs == 50
+    assert task.epsilon_test_grid == GRID and task.epsilon_test_screen_runs == (50,)
     study.tell(study.trials[0].number, state=optuna.trial.TrialState.FAIL)
 
     dists = distributions(spec)
@@ -260,7 +352,16 @@ def test_the_cost_model_prices_the_screens(tmp_path: Path) -> None:
     assert model.fit([]).screen == (0.0, 0.5) and model.fit([]).screen_share == 0.2
     driver = Driver(parse_spec(_data(), source="eps.toml"), open_storage(str(tmp_path / "j.log"), "eps"))
     model = driver._prior_model()  # noqa: SLF001
-    assert model.screen == GRID and model.screen_share == 50 / 500
+    assert model.screen == GRID and model.screen_share == 50 / 500 and model.screen_carried == 50 / 500
+    # a halving: per value on average (3 × 20 + 1 × 30 of 500 runs over 3 values), the chosen one on 50
+    spec = parse_spec(_data(epsilon_test_screen_runs=[20, 50]), source="eps.toml")
+    assert spec.ladder_epsilon_screen_share == pytest.approx(90 / 3 / 500) and spec.ladder_epsilon_carried_share == 0.1
+    halving = Driver(spec, open_storage(str(tmp_path / "k.log"), "eps"))._prior_model()  # noqa: SLF001
+    assert halving.screen_carried == 0.1 and halving.screen_share == pytest.approx(0.06)
+    expected = features(config, screen=GRID, screen_share=0.06, carried=0.1)  # which value goes on is not known
+    assert halving.predict_features(expected) == pytest.approx(halving.predict(config))
+    assert expected[6] == pytest.approx(features(config, screen=GRID, screen_share=[0.04, 0.04, 0.1])[6])  # runs
+    assert features(config, screen=(0.0, 0.5), screen_share=[0.1, 0.2])[6] == pytest.approx(plain[6] * 1.1)
 
 
 def test_a_spec_without_the_grid_searches_epsilon_test_as_before(tmp_path: Path) -> None:

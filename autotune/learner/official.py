@@ -10,7 +10,7 @@ window and ε_test.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,7 +21,15 @@ from autotune.learner.config import TrainConfig
 from sim.config import ConfigError, EngineConfig
 from sim.protocols import OFFICIAL, PROTOCOLS, EvalResult, SequentialEvaluation
 
-__all__ = ["OFFICIAL_PROTOCOL", "EpsilonScreens", "evaluate_official", "official_protocol", "screen_epsilons"]
+__all__ = [
+    "OFFICIAL_PROTOCOL",
+    "EpsilonScreens",
+    "evaluate_official",
+    "official_protocol",
+    "screen_epsilons",
+    "screen_order",
+    "screen_survivors",
+]
 
 OFFICIAL_PROTOCOL = OFFICIAL  # ruleset -> its official evaluation protocol (``sim.protocols.OFFICIAL``)
 
@@ -76,17 +84,34 @@ def evaluate_official(
     )
 
 
+def screen_order(epsilon: float, median: float, mean: float) -> tuple[float, float, float]:
+    """The sort key of an ε_test screen (larger is better): the site's statistic, then the mean, then the smaller
+    ε_test."""
+    return (median, mean, -epsilon)
+
+
+def screen_survivors(values: int, stages: int) -> tuple[int, ...]:
+    """How many ε_test values each stage of ``screen_epsilons`` screens: every value on the first, then the better
+    half (rounded down, at least one) of the stage before."""
+    out = [values]
+    for _ in range(stages - 1):
+        out.append(max(1, out[-1] // 2))
+    return tuple(out)
+
+
 @dataclasses.dataclass
 class EpsilonScreens:
     """One trained net's official evaluation begun at several ε_test values (``screen_epsilons``).
 
-    ``screens[i]`` scores ``grid[i]`` on the protocol's first ``runs`` runs — exactly the whole protocol's first
-    runs at that ε_test — and ``finish(i)`` carries that evaluation on to the whole protocol, so the runs it
-    screened on are not run again. ``net_json`` is the net's JSON text (the one round trip every evaluation
-    shares)."""
+    ``screens[i]`` scores ``grid[i]`` on the protocol's first ``screens[i].runs`` runs — exactly the whole
+    protocol's first runs at that ε_test: ``runs`` (the last stage) for the values that reached it, a shorter
+    stage for those dropped earlier — and ``finish(i)`` carries that evaluation on to the whole protocol, so the
+    runs it screened on are not run again. ``net_json`` is the net's JSON text (the one round trip every
+    evaluation shares)."""
 
     grid: tuple[float, ...]
     runs: int
+    """The runs of the last stage (the screens of ``finalists``)."""
     net_json: str
     screens: list[EvalResult]
     frames: int
@@ -95,6 +120,19 @@ class EpsilonScreens:
     _protocol: str
     _net: Any
     _paused: list[SequentialEvaluation | None]
+    stages: tuple[int, ...] = ()
+    """The runs of each stage (``screen_epsilons``); ``(runs,)`` for one."""
+
+    @property
+    def finalists(self) -> list[int]:
+        """Indices of the values screened on the last stage's ``runs`` (every value with one stage)."""
+        return [i for i, ev in enumerate(self.screens) if ev.runs == self.runs]
+
+    @property
+    def best(self) -> int:
+        """The best finalist by ``screen_order``."""
+        return max(self.finalists, key=lambda i: screen_order(self.grid[i], self.screens[i].median_site,
+                                                              self.screens[i].mean))  # fmt: skip
 
     def finish(
         self,
@@ -124,37 +162,63 @@ def screen_epsilons(
     convnet: Any,
     config: TrainConfig,
     grid: tuple[float, ...] | list[float],
-    runs: int,
+    runs: int | Sequence[int],
     *,
     protocol: str | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> EpsilonScreens:
     """Score a trained net at each ε_test of ``grid`` on the official protocol's first ``runs`` runs.
 
-    Each screen is what ``evaluate_official(convnet, config at that ε_test, runs=runs)`` gives, to the digit;
+    ``runs``: one count (every value screened on that many runs) or increasing counts, a successive halving:
+    every value on the first, the better half (``screen_survivors``, ranked by ``screen_order``) carried on to
+    the next, and so on; ``EpsilonScreens.best`` is the best on the last. Each screen is what
+    ``evaluate_official(convnet, config at that ε_test, runs=n)`` gives for the runs n it reached, to the digit;
     the net's JSON round trip is done once for all of them, and on the sequential protocols (v2-official,
-    v1-original) each screen stays paused so that ``finish`` completes the chosen one instead of starting over.
+    v1-original) a screen carried on is continued, not restarted, and the finalists stay paused so that
+    ``finish`` completes the chosen one instead of starting over.
     """
     protocol = protocol or official_protocol(config)
     proto = PROTOCOLS.get(protocol)
-    total = proto.runs if proto is not None else runs
-    if not 1 <= runs <= total:
-        raise ConfigError(f"runs: a screen runs 1 to {total} of {protocol}'s runs, got {runs}")
+    stages = (int(runs),) if isinstance(runs, (int, np.integer)) else tuple(int(r) for r in runs)
+    total = proto.runs if proto is not None else stages[-1] if stages else 0
+    increasing = all(b > a for a, b in zip(stages, stages[1:], strict=False))
+    if not stages or not increasing or any(not 1 <= r <= total for r in stages):
+        raise ConfigError(f"runs: a screen runs 1 to {total} of {protocol}'s runs, in increasing stages; got "
+                          f"{list(stages) if len(stages) != 1 else stages[0]}")  # fmt: skip
     net_json = dumps_net(convnet)
     net = loads_net(net_json)  # train.js saves with toJSON, evaluate.js loads with fromJSON
     engine = config.engine_config
-    screens: list[EvalResult] = []
-    paused: list[SequentialEvaluation | None] = []
-    for epsilon in grid:
-        if proto is not None and proto.sequential:
-            ev = brain_evaluation(net, engine, config.temporal_window, float(epsilon), protocol)
-            ev.advance(runs, progress=progress)
-            screens.append(ev.result())
-            paused.append(ev)
-        else:
-            screens.append(evaluate_brain(net, engine, config.temporal_window, float(epsilon), protocol, runs=runs,
-                                          progress=progress))  # fmt: skip
-            paused.append(None)
-    frames = sum(ev.runs * ev.frames for ev in screens)
-    return EpsilonScreens(tuple(float(e) for e in grid), runs, net_json, screens, frames, config, protocol, net,
-                          paused)  # fmt: skip
+    sequential = proto is not None and proto.sequential
+    values = tuple(float(e) for e in grid)
+    screens: list[EvalResult | None] = [None] * len(values)
+    paused: list[SequentialEvaluation | None] = [None] * len(values)
+    frames = 0
+    alive = list(range(len(values)))
+
+    def order(i: int) -> tuple[float, float, float]:
+        ev = screens[i]
+        assert ev is not None
+        return screen_order(values[i], ev.median_site, ev.mean)
+
+    for stage, keep in zip(stages, screen_survivors(len(values), len(stages)), strict=True):
+        if len(alive) > keep:  # the better half of the last stage goes on; the others' worlds are freed
+            alive = sorted(sorted(alive, key=order, reverse=True)[:keep])
+            paused = [p if i in alive else None for i, p in enumerate(paused)]
+        for i in alive:
+            if sequential:
+                ev = paused[i]
+                if ev is None:
+                    ev = paused[i] = brain_evaluation(net, engine, config.temporal_window, values[i], protocol)
+                done = ev.runs_done
+                ev.advance(stage - done, progress=progress)
+                frames += (stage - done) * ev.frames
+                screens[i] = ev.result()
+            else:
+                result = evaluate_brain(net, engine, config.temporal_window, values[i], protocol, runs=stage,
+                                        progress=progress)  # fmt: skip
+                frames += result.runs * result.frames
+                screens[i] = result
+    done_screens = [ev for ev in screens if ev is not None]
+    assert len(done_screens) == len(values)
+    return EpsilonScreens(values, stages[-1], net_json, done_screens, frames, config, protocol, net, paused,
+                          stages)  # fmt: skip

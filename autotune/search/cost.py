@@ -11,8 +11,8 @@ non-negative work terms whose coefficients are seconds per unit of work:
   (∝ (1 + other_agents) and ∝ params × (1 + other_agents)), and per greedy decision the input ``Vol``
   convnetjs allocates, whose Gaussian fill the exact evaluation replays draw for draw
   (∝ (1 + other_agents) × (1 − epsilon_test_time) × inputs: a wide view costs more than a wide net);
-  with ``[ladder] epsilon_test_grid`` each grid value's screen adds its share of those runs, less the chosen
-  screen's, which the official evaluation carries on from.
+  with ``[ladder] epsilon_test_grid`` each grid value's screen adds its share of those runs (the halving screens
+  some values on fewer runs than others), less the chosen screen's, which the official evaluation carries on from.
 
 ``CostModel.prior()`` holds coefficients measured on the 2-core reference machine (see
 ``PRIOR``); ``fit`` refits them by non-negative least squares on *relative* errors over the study's
@@ -70,23 +70,35 @@ _PRIOR_WEIGHT = 4.0
 
 
 def features(
-    config: TrainConfig, *, evaluated: bool = True, screen: Sequence[float] = (), screen_share: float = 0.0
+    config: TrainConfig,
+    *,
+    evaluated: bool = True,
+    screen: Sequence[float] = (),
+    screen_share: float | Sequence[float] = 0.0,
+    carried: float | None = None,
 ) -> np.ndarray:
     """The work terms of one rung of ``config`` (at its ``train_iterations``), see ``FEATURES``.
 
     ``screen``: the ε_test values its net was screened at before the official evaluation (``[ladder]
-    epsilon_test_grid``), each on ``screen_share`` of the protocol's runs: that share of the runs' cars, forward
-    passes and (at its ε) input fills. The screens share the evaluation's set-up, and the chosen one is carried on
-    into the official evaluation (``screen_epsilons``), which so runs only the rest of the protocol's runs."""
+    epsilon_test_grid``); ``screen_share``: the share of the protocol's runs each screen ran (one number for
+    all, or one per value: the halving stops some early): that share of the runs' cars, forward passes and (at
+    its ε) input fills. The screens share the evaluation's set-up, and the chosen one, which ran ``carried`` of
+    the runs (default: the largest share), is carried on into the official evaluation (``screen_epsilons``),
+    which so runs only the rest of the protocol's runs."""
     b = float(config.train_iterations)
     cars = 1.0 + config.other_agents
     p = float(config.param_count)
     learning = max(0.0, b - config.start_learn_threshold)
     ev = 1.0 if evaluated else 0.0
     k = len(screen) if evaluated else 0
-    rest = ev * (1.0 - screen_share) if k else ev  # the official runs after the chosen screen's
-    runs = rest + k * screen_share  # official evaluations' worth of runs
-    greedy = rest * (1.0 - config.epsilon_test_time) + (screen_share * sum(1.0 - e for e in screen) if k else 0.0)
+    shares = [float(screen_share)] * k if isinstance(screen_share, (int, float)) else [float(x) for x in screen_share]
+    if k and len(shares) != k:
+        raise ValueError(f"screen_share: {len(shares)} shares for {k} screened values")
+    done = (max(shares) if carried is None else float(carried)) if k else 0.0
+    rest = ev * (1.0 - done)  # the official runs after the chosen screen's
+    runs = rest + (sum(shares) if k else 0.0)  # official evaluations' worth of runs
+    screened = sum(x * (1.0 - e) for x, e in zip(shares, screen, strict=True)) if k else 0.0  # their greedy runs
+    greedy = rest * (1.0 - config.epsilon_test_time) + screened
     return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,
                      ev, runs * cars, runs * p * cars, cars * greedy * config.net_inputs])  # fmt: skip
 
@@ -132,7 +144,10 @@ class CostModel:
     """The study's ``[ladder] epsilon_test_grid``: every predicted rung screens its net at these ε_test values
     (unless ``predict(..., screened=False)``: a race run is scored at its configuration's own ε_test)."""
     screen_share: float = 0.0
-    """The share of the official protocol's runs each screen evaluates."""
+    """The share of the official protocol's runs a screen evaluates, on average over the grid's values."""
+    screen_carried: float = 0.0
+    """The share the chosen screen ran (the halving's last stage), carried on into the official evaluation; 0:
+    ``screen_share`` (one stage)."""
 
     @classmethod
     def prior(cls) -> CostModel:
@@ -146,11 +161,14 @@ class CostModel:
         ε_test screens of ``screen`` unless ``screened`` is False)."""
         screen = self.screen if screened else ()
         return self.predict_features(features(config, evaluated=evaluated, screen=screen,
-                                              screen_share=self.screen_share))  # fmt: skip
+                                              screen_share=self.screen_share,
+                                              carried=self.screen_carried or None))  # fmt: skip
 
-    def screening(self, grid: Sequence[float], share: float) -> CostModel:
-        """This model predicting rungs whose nets are screened at ``grid`` on ``share`` of the runs."""
-        return dataclasses.replace(self, screen=tuple(float(e) for e in grid), screen_share=float(share))
+    def screening(self, grid: Sequence[float], share: float, carried: float = 0.0) -> CostModel:
+        """This model predicting rungs whose nets are screened at ``grid`` on ``share`` of the runs each (on
+        average), the chosen one on ``carried`` (0: ``share``)."""
+        return dataclasses.replace(self, screen=tuple(float(e) for e in grid), screen_share=float(share),
+                                   screen_carried=float(carried))  # fmt: skip
 
     def fit(self, observations: Iterable[Observation]) -> CostModel:
         """Refit to finished rungs (relative least squares, non-negative), the prior as pseudo-observations."""
@@ -158,7 +176,7 @@ class CostModel:
 
         obs = [o for o in observations if o.seconds > 0 and math.isfinite(o.seconds)]
         if not obs:
-            return CostModel(tuple(PRIOR.tolist()), 0, self.screen, self.screen_share)
+            return dataclasses.replace(self, coef=tuple(PRIOR.tolist()), n_observations=0)
         prior = np.asarray(PRIOR)
         rows: list[np.ndarray] = []
         target: list[float] = []
@@ -174,7 +192,7 @@ class CostModel:
             rows.append(e)
             target.append(w)
         coef, _ = nnls(np.vstack(rows), np.asarray(target))
-        return CostModel(tuple(float(c) for c in coef), len(obs), self.screen, self.screen_share)
+        return dataclasses.replace(self, coef=tuple(float(c) for c in coef), n_observations=len(obs))
 
     def ladder_costs(self, configs: Sequence[TrainConfig]) -> list[float]:
         """Predicted seconds of each rung (one config per rung)."""

@@ -349,6 +349,8 @@ class Driver:
         new = self.spec.to_dict()
         for key, label in (("space", "[space]"), ("ladder", "[ladder]")):
             old_t, new_t = stored.get(key) or {}, new.get(key) or {}
+            if key == "ladder":  # how many runs choose ε_test changes no value's meaning (the official score)
+                old_t, new_t = ({k: v for k, v in t.items() if k not in _RESUMABLE_LADDER} for t in (old_t, new_t))
             if old_t == new_t:
                 continue
             names = sorted(set(old_t) | set(new_t))
@@ -406,7 +408,8 @@ class Driver:
         """The prior cost model, pricing each sampled rung's ε_test screens where the spec has a grid."""
         model = CostModel.prior()
         if self.spec.ladder_epsilon_grid:
-            model = model.screening(self.spec.ladder_epsilon_grid, self.spec.ladder_epsilon_screen_share)
+            model = model.screening(self.spec.ladder_epsilon_grid, self.spec.ladder_epsilon_screen_share,
+                                    self.spec.ladder_epsilon_carried_share)  # fmt: skip
         return model
 
     # -- warm start ------------------------------------------------------------------------
@@ -1039,13 +1042,15 @@ def _observations(t: FrozenTrial) -> list[Observation]:
         return []
     out = []
     rungs = t.user_attrs.get(keys.RUNGS) or ()
-    share = _screen_share_of(t)
+    share, runs = _screen_share_of(t)
     for rung in rungs:
         seconds = rung.get(keys.SECONDS)
         if isinstance(seconds, (int, float)):
             config = trained_rung_config(top, int(rung[keys.BUDGET]), rungs)
-            screen = [float(s[0]) for s in rung.get(keys.EPSILON_SCREEN) or ()]
-            out.append(Observation(tuple(features(config, screen=screen, screen_share=share)), float(seconds)))
+            screens = rung.get(keys.EPSILON_SCREEN) or ()
+            screen = [float(s[0]) for s in screens]
+            shares = [float(s[3]) / runs if len(s) > 3 and runs else share for s in screens]  # a halving's own runs
+            out.append(Observation(tuple(features(config, screen=screen, screen_share=shares)), float(seconds)))
     if not t.user_attrs.get(keys.RUNGS) and t.state == TrialState.COMPLETE:
         wall = t.user_attrs.get(keys.TRIAL_WALL_SECONDS)
         if isinstance(wall, (int, float)):
@@ -1053,13 +1058,22 @@ def _observations(t: FrozenTrial) -> list[Observation]:
     return out
 
 
-def _screen_share_of(t: FrozenTrial) -> float:
-    """The share of its protocol's runs each of a finished trial's ε_test screens evaluated (0: none stored)."""
+def _screen_share_of(t: FrozenTrial) -> tuple[float, int]:
+    """The share of its protocol's runs a finished trial's ε_test screens evaluated (0: none stored; a record from
+    before the halving, one for all of them; since, each screen stores its own runs, the finalists this share),
+    and the protocol's runs (0: unknown)."""
     from sim.protocols import PROTOCOLS
 
     proto = PROTOCOLS.get(str(t.user_attrs.get(keys.OFFICIAL_PROTOCOL)))
     runs = t.user_attrs.get(keys.EPSILON_SCREEN_RUNS)
-    return float(runs) / proto.runs if proto is not None and isinstance(runs, int) else 0.0
+    if proto is None:
+        return 0.0, 0
+    return (float(runs) / proto.runs if isinstance(runs, int) else 0.0), proto.runs
+
+
+_RESUMABLE_LADDER = frozenset({"epsilon_test_screen_runs"})
+"""[ladder] keys a study may resume with changed: the ε_test screens' runs choose among the same grid values, and
+every trial's value stays the official score at its choice (a study from before the halving resumes with it)."""
 
 
 class _Refused(Exception):

@@ -85,8 +85,9 @@ class TrialTask:
     """Ladder trials: choose each rung's ε_test from these values (``choose_epsilon``) instead of the config's:
     screened on the protocol's first ``epsilon_test_screen_runs`` runs, the best scored officially; () = the
     config's ε_test (race runs, replays: a configuration is measured with its own)."""
-    epsilon_test_screen_runs: int = 100
-    """Runs of each ε_test screen (a prefix of the official protocol)."""
+    epsilon_test_screen_runs: tuple[int, ...] = (50, 100)
+    """Runs of each stage of the ε_test screens (a prefix of the official protocol): every value on the first, the
+    better half on to the next (``autotune.screen_epsilons``)."""
 
 
 @dataclasses.dataclass
@@ -235,7 +236,7 @@ def _run_ladder(
         keys.LADDER: list(task.rungs), keys.RUNGS: rungs, keys.FRAMES_SIMULATED: 0,
     })  # fmt: skip
     if task.epsilon_test_grid:
-        attrs[keys.EPSILON_SCREEN_RUNS] = int(task.epsilon_test_screen_runs)
+        attrs[keys.EPSILON_SCREEN_RUNS] = int(task.epsilon_test_screen_runs[-1])  # the finalists' (each screen: 4th)
     value: float | None = None
     net_json = net_js = None
     for r, budget in enumerate(task.rungs):
@@ -264,9 +265,10 @@ def _run_ladder(
         if task.epsilon_test_grid:  # ε_test acts only at test time: choose it for this net, train nothing again
             screened = screen_epsilons(convnet, config, task.epsilon_test_grid, task.epsilon_test_screen_runs,
                                        protocol=protocol, progress=eval_progress)  # fmt: skip
-            screens = [[e, float(ev.median_site), float(ev.mean)]
+            screens = [[e, float(ev.median_site), float(ev.mean), int(ev.runs)]
                        for e, ev in zip(screened.grid, screened.screens, strict=True)]  # fmt: skip
             chosen = choose_epsilon(screens)
+            assert chosen == screened.best
             config = config.replace(epsilon_test_time=screened.grid[chosen])
             top = top.replace(epsilon_test_time=screened.grid[chosen])  # the trial's config: its last rung's choice
             attrs.update({keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn()})
@@ -317,16 +319,24 @@ def _run_ladder(
 
 
 def choose_epsilon(screens: Sequence[Sequence[float]]) -> int:
-    """The index of the best of a net's ε_test screens (``[ε, site median, mean]`` each): the site's statistic,
-    then the mean, then the smaller ε.
+    """The index of the best of a net's ε_test screens (``[ε, site median, mean, runs]`` each; records from before
+    the halving have no runs) among those screened on the most runs: the site's statistic, then the mean, then the
+    smaller ε (``autotune.learner.official.screen_order``).
 
-    A screen is the official protocol's first ``epsilon_test_screen_runs`` runs at that ε_test (the same traffic
-    and draws as the whole evaluation's first runs; ``autotune.screen_epsilons``), and the chosen screen is
-    carried on into the official evaluation. Why per net: ε_test acts only at test time, so one training serves
-    every value; searched as a training setting it took a draw's luck to pair a net that learned with a small
-    ε_test (measured: 93–99 % of a cold study's draws sat at 0.4 or more, while every net that scored 74.5 drove
-    with ε_test below 0.08)."""
-    return max(range(len(screens)), key=lambda i: (screens[i][1], screens[i][2], -screens[i][0]))
+    A screen is the official protocol's first runs at that ε_test (the same traffic and draws as the whole
+    evaluation's first runs; ``autotune.screen_epsilons``): every grid value on the first stage of
+    ``epsilon_test_screen_runs``, the better half on to the next, and the chosen screen is carried on into the
+    official evaluation. Why per net: ε_test acts only at test time, so one training serves every value; searched
+    as a training setting it took a draw's luck to pair a net that learned with a small ε_test (measured: 93–99 %
+    of a cold study's draws sat at 0.4 or more, while every net that scored 74.5 drove with ε_test below 0.08)."""
+    from autotune.learner.official import screen_order
+
+    def runs(s: Sequence[float]) -> float:
+        return float(s[3]) if len(s) > 3 else 0.0
+
+    most = max(runs(s) for s in screens)
+    finalists = [i for i, s in enumerate(screens) if runs(s) == most]
+    return max(finalists, key=lambda i: screen_order(screens[i][0], screens[i][1], screens[i][2]))
 
 
 STATIC_SHARE = 0.99

@@ -75,11 +75,16 @@ benchmark studies on the full space (1,042 trials): every net that scored 74.3 o
 5–175 % at 10k, except four adagrad nets at learning rates of 1e-8 to 1e-7 (under 0.05 %); 56 % of all trials —
 570 of them adagrad at 1e-8 to 1e-5 — moved under 0.1 %. Such a net's score is its initial weights' luck: the
 cold studies' leaders were of this kind, and on fresh seeds their settings scored 16 to 73."""
-EPSILON_SCREEN_RUNS = 100
-"""Default ``[ladder] epsilon_test_screen_runs``: the first 100 of v2-official's 500 runs (a prefix of the protocol:
-the same traffic and draws as its first 100 runs; ~1.2 s a screen against ~5 s for the whole evaluation). The
-site's median over 100 runs moves ~0.35 mph with the evaluation's random stream (``spread.json``: a net at
-ε_test 0.01), enough to tell ε_test 0 from 0.3 apart on one net, not 0 from 0.05."""
+EPSILON_SCREEN_RUNS = (50, 100)
+"""Default ``[ladder] epsilon_test_screen_runs``: every grid value on the first 50 of v2-official's 500 runs, the
+better half on to 100 (a prefix of the protocol: the same traffic and draws as its first runs; ~1.2 s a 100-run
+screen against ~5 s for the whole evaluation); a protocol with 100 runs or fewer (v1-original's 10) on half of them,
+then on all (``default_screen_runs``). The site's median over 100 runs
+moves ~0.35 mph with the evaluation's random stream (``spread.json``: a net at ε_test 0.01), enough to tell ε_test
+0 from 0.3 apart on one net, not 0 from 0.05. The halving: on 36 stored rung nets of two cold studies (the 12
+best of each and 6 drawn at random), all five values on 100 runs chose what 50 → the best 2 on 100 chose on 34,
+and the two others lost 0.03 and 0.11 mph (mean −0.004) for 250 screened runs instead of 400 (a rung's
+evaluation: 750 runs' worth instead of 900); screening on 50 runs alone lost 0.047 on the mean and up to 0.67."""
 BALANCE_MIN_SHARE = 0.2
 BALANCEABLE_SAMPLERS = ("tpe", "random")
 """Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
@@ -320,8 +325,9 @@ class StudySpec:
     """[ladder] epsilon_test_grid: ε_test is chosen per trained net, not searched: each rung's net is screened at
     these values (on ``ladder_epsilon_screen_runs`` of the official runs) and scored officially at the best; ()
     = off (ε_test is whatever the trial's config says)."""
-    ladder_epsilon_screen_runs: int = EPSILON_SCREEN_RUNS
-    """[ladder] epsilon_test_screen_runs: the official protocol's first runs each screen evaluates."""
+    ladder_epsilon_screen_runs: tuple[int, ...] = EPSILON_SCREEN_RUNS
+    """[ladder] epsilon_test_screen_runs: the official protocol's first runs of each stage of the screens: every
+    grid value on the first, the better half of them on to the next (``autotune.screen_epsilons``)."""
     warm_start: WarmStartSection = WarmStartSection()
     """Crowd prior / earlier study copied into the sampler's history."""
     source: str = ""
@@ -364,12 +370,28 @@ class StudySpec:
 
     @property
     def ladder_epsilon_screen_share(self) -> float:
-        """The share of the official protocol's runs each ε_test screen evaluates (0 without a grid)."""
+        """The share of the official protocol's runs an ε_test screen evaluates, on average over the grid's values
+        (the halving's later stages screen only some of them); 0 without a grid."""
         if not self.ladder_epsilon_grid:
             return 0.0
+        from autotune.learner.official import screen_survivors
+
+        stages = self.ladder_epsilon_screen_runs
+        kept = screen_survivors(len(self.ladder_epsilon_grid), len(stages))
+        runs = sum(k * (b - a) for k, a, b in zip(kept, (0, *stages), stages, strict=False))
+        return runs / len(self.ladder_epsilon_grid) / self._official_runs
+
+    @property
+    def ladder_epsilon_carried_share(self) -> float:
+        """The share of the official protocol's runs the chosen screen ran (its last stage), which the official
+        evaluation carries on from; 0 without a grid."""
+        return self.ladder_epsilon_screen_runs[-1] / self._official_runs if self.ladder_epsilon_grid else 0.0
+
+    @property
+    def _official_runs(self) -> int:
         from sim.protocols import PROTOCOLS
 
-        return self.ladder_epsilon_screen_runs / PROTOCOLS[OFFICIAL_PROTOCOL[self.ruleset]].runs
+        return PROTOCOLS[OFFICIAL_PROTOCOL[self.ruleset]].runs
 
     @property
     def gated_rungs(self) -> int:
@@ -392,7 +414,8 @@ class StudySpec:
             ladder["reseed"] = True
         if self.ladder_epsilon_grid:  # likewise
             ladder["epsilon_test_grid"] = list(self.ladder_epsilon_grid)
-            ladder["epsilon_test_screen_runs"] = self.ladder_epsilon_screen_runs
+            stages = self.ladder_epsilon_screen_runs  # one stage as a number, as stored before the halving
+            ladder["epsilon_test_screen_runs"] = stages[0] if len(stages) == 1 else list(stages)
         return {
             "study": dataclasses.asdict(self.study),
             "fixed": dict(self.fixed),
@@ -591,7 +614,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
 
 def _parse_ladder(
     table: Any, src: str, ruleset: str
-) -> tuple[tuple[int, ...], int, bool, float, bool, tuple[float, ...], int]:
+) -> tuple[tuple[int, ...], int, bool, float, bool, tuple[float, ...], tuple[int, ...]]:
     """``(rungs, min_top, prune_static, min_weight_change, reseed, epsilon_test_grid, epsilon_test_screen_runs)``;
     min_top 0 when the table leaves it out (the last rung)."""
     if table is None:
@@ -626,9 +649,16 @@ def _parse_ladder(
     return tuple(values), (0 if min_top == values[-1] else int(min_top)), prune, change, reseed, grid, screen_runs
 
 
-def _parse_epsilon_grid(table: Mapping[str, Any], src: str, ruleset: str) -> tuple[tuple[float, ...], int]:
+def default_screen_runs(runs: int) -> tuple[int, ...]:
+    """``EPSILON_SCREEN_RUNS`` for a protocol of ``runs`` runs: (50, 100) on v2-official's 500; on 100 runs or
+    fewer, half of them, then all (v1-original's 10: (5, 10))."""
+    last = min(EPSILON_SCREEN_RUNS[-1], runs)
+    return (last // 2, last) if last >= 2 else (last,)
+
+
+def _parse_epsilon_grid(table: Mapping[str, Any], src: str, ruleset: str) -> tuple[tuple[float, ...], tuple[int, ...]]:
     """``[ladder] epsilon_test_grid`` (distinct values in ε_test's range, sorted) and ``epsilon_test_screen_runs``
-    (1 … the official protocol's runs)."""
+    (a number, or increasing numbers: 1 … the official protocol's runs)."""
     from sim.protocols import PROTOCOLS
 
     where = f"{src}: [ladder] epsilon_test_grid"
@@ -642,13 +672,18 @@ def _parse_epsilon_grid(table: Mapping[str, Any], src: str, ruleset: str) -> tup
         raise SpecError(f"{where}: one value ({grid[0]:g}) is no choice; fix it with [fixed] epsilon_test_time = "
                         f"{grid[0]:g}, or list two or more values")  # fmt: skip
     runs = PROTOCOLS[OFFICIAL_PROTOCOL[ruleset]].runs
-    screen = _int(
-        table.get("epsilon_test_screen_runs", min(EPSILON_SCREEN_RUNS, runs)),
-        f"{src}: [ladder] epsilon_test_screen_runs (the official protocol's first runs per screen)",
-        1,
-        runs,
-    )
-    return grid, screen
+    what = f"{src}: [ladder] epsilon_test_screen_runs (the official protocol's first runs of each screening stage)"
+    raw_runs = table.get("epsilon_test_screen_runs", list(default_screen_runs(runs)))
+    if isinstance(raw_runs, list):
+        if not raw_runs:
+            raise SpecError(f"{what}: an empty list screens nothing; write e.g. [50, 100] or 100")
+        stages = tuple(_int(r, what, 1, runs) for r in raw_runs)
+        if any(b <= a for a, b in zip(stages, stages[1:], strict=False)):
+            raise SpecError(f"{what}: {list(stages)} must increase (every value on the first, the better half on to "
+                            f"the next); e.g. [{runs // 10 or 1}, {runs // 5 or 2}]")  # fmt: skip
+    else:
+        stages = (_int(raw_runs, what, 1, runs),)
+    return grid, stages
 
 
 def _parse_warm_start(table: Mapping[str, Any], src: str) -> WarmStartSection:

@@ -267,8 +267,7 @@ def _run_ladder(
                                        protocol=protocol, progress=eval_progress)  # fmt: skip
             screens = [[e, float(ev.median_site), float(ev.mean), int(ev.runs)]
                        for e, ev in zip(screened.grid, screened.screens, strict=True)]  # fmt: skip
-            chosen = choose_epsilon(screens)
-            assert chosen == screened.best
+            chosen = screened.best  # choose_epsilon's rule, applied where the halving already ranked the screens
             config = config.replace(epsilon_test_time=screened.grid[chosen])
             top = top.replace(epsilon_test_time=screened.grid[chosen])  # the trial's config: its last rung's choice
             attrs.update({keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn()})
@@ -319,9 +318,10 @@ def _run_ladder(
 
 
 def choose_epsilon(screens: Sequence[Sequence[float]]) -> int:
-    """The index of the best of a net's ε_test screens (``[ε, site median, mean, runs]`` each; records from before
-    the halving have no runs) among those screened on the most runs: the site's statistic, then the mean, then the
-    smaller ε (``autotune.learner.official.screen_order``).
+    """The index of the best of a net's recorded ε_test screens (``[ε, site median, mean, runs]`` each; records
+    from before the halving have no runs) among those screened on the most runs: the site's statistic, then the
+    mean, then the smaller ε (``autotune.learner.official.screen_order``) — the choice ``EpsilonScreens.best``
+    made when the rung was scored, read back from its record.
 
     A screen is the official protocol's first runs at that ε_test (the same traffic and draws as the whole
     evaluation's first runs; ``autotune.screen_epsilons``): every grid value on the first stage of

@@ -25,7 +25,7 @@ from autotune.search.cost import CostModel, features
 from autotune.search.driver import Driver, race_entry
 from autotune.search.gate import distributions
 from autotune.search.ladder import rung_config, trained_rung_config
-from autotune.search.objective import COMPLETE, TrialTask, choose_epsilon, run_trial
+from autotune.search.objective import COMPLETE, PRUNED, TrialTask, choose_epsilon, run_trial
 from autotune.search.spec import EPSILON_SCREEN_RUNS, SpecError, default_screen_runs, parse_spec
 from autotune.search.storage import open_storage
 from tests.conftest import FakePool
@@ -222,6 +222,83 @@ def test_a_halving_trial_records_each_screens_runs_and_the_cost_model_reads_them
     want = features(config, screen=[s[0] for s in screens], screen_share=shares)
     assert np.allclose(obs.features, want)
     assert want[6] == pytest.approx(features(config)[6] * (0.9 + (3 * 20 + 2 * 50) / 500))  # cars: runs' worth
+
+
+@pytest.mark.parametrize("protocol", ["v2-official", "custom"])
+def test_screens_count_greedy_choices_and_stop_when_asked(protocol: str) -> None:
+    """``greedy_actions`` sums each value's greedy choices over the runs its screen reached; ``stop`` is asked
+    after each screen with those sums, and True ends the screening there: in the first stage the grid is the
+    values screened so far, each a finalist; ``stopped`` is set, and ``finish`` is still the whole evaluation."""
+    from autotune import screen_epsilons
+
+    net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
+    counts = np.zeros(5, dtype=np.int64)
+    screened = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, greedy_actions=counts)
+    want = np.zeros(5, dtype=np.int64)
+    for epsilon, screen in zip(HALVING_GRID, screened.screens, strict=True):
+        alone = np.zeros(5, dtype=np.int64)
+        evaluate_official(net, TINY.replace(epsilon_test_time=epsilon), protocol=protocol, runs=screen.runs,
+                          greedy_actions=alone)  # fmt: skip
+        want += alone
+    assert want.sum() > 0 and np.array_equal(counts, want) and not screened.stopped
+    asked: list[np.ndarray] = []
+
+    def stop(counts: np.ndarray) -> bool:
+        asked.append(counts.copy())
+        return True
+
+    stopped = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, stop=stop)
+    assert stopped.stopped and stopped.stages == (20,) and stopped.runs == 20 and len(asked) == 1
+    assert stopped.grid == HALVING_GRID[:1] and stopped.finalists == [0] and stopped.best == 0
+    first = np.zeros(5, dtype=np.int64)
+    alone = evaluate_official(net, TINY, protocol=protocol, runs=20, greedy_actions=first)  # ε_test 0, the first
+    assert np.array_equal(asked[0], first) and stopped.screens[0].scores == alone.scores
+    assert stopped.frames == 20 * alone.frames
+    whole = stopped.finish(0)
+    assert whole.scores == evaluate_official(net, TINY, protocol=protocol).scores
+    calls = iter(range(100))
+    late = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, stop=lambda c: next(calls) == 5)
+    assert late.stopped and late.stages == (20, 50) and late.grid == HALVING_GRID  # the 6th: a finalist's 50 runs
+    assert sorted(s.runs for s in late.screens) == [20, 20, 20, 20, 50] and len(late.finalists) == 1
+    never = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, stop=lambda c: False)
+    assert not never.stopped and never.stages == (20, 50) and never.finalists == screened.finalists
+
+
+def test_a_net_static_on_its_screens_is_pruned_without_its_official_score() -> None:
+    """With ``prune_static`` a rung whose screens' greedy choices are one action stops after the first screen: the
+    trial is PRUNED with the cause, the rung keeps its net and screens but has no score, nothing is reported,
+    no frames are spent past the screens, and its cost observation prices the screens without the evaluation."""
+    from autotune.search.driver import _observations
+    from autotune.search.records import kept_rungs
+
+    reports: list[int] = []
+
+    def climb(prune: bool) -> Any:
+        task = TrialTask(number=0, config=TINY.to_mapping(), seed=3, rungs=(400, 1200), prune_static=prune,
+                         epsilon_test_grid=HALVING_GRID, epsilon_test_screen_runs=(20, 50))  # fmt: skip
+        return run_trial(task, lambda step, *a: bool(reports.append(step)))  # type: ignore[func-returns-value]
+
+    outcome = climb(True)  # this tiny net turns right at every greedy decision (tests/test_search_ladder.py)
+    assert outcome.state == PRUNED and outcome.attrs[keys.STATIC_POLICY] is True and reports == []
+    (rung,) = outcome.attrs[keys.RUNGS]
+    greedy = rung[keys.GREEDY_CHOICES]
+    assert greedy[:4] == [0, 0, 0, 0] and greedy[4] > 0
+    assert outcome.cause == (
+        f"static policy at rung 0 (400 iterations): the net chose right in 100.00% of its "
+        f"{greedy[4]:,} greedy decisions, over its ε_test screens (not scored officially)"
+    )
+    assert rung[keys.SCORE] is None and keys.EPSILON_TEST not in rung and set(outcome.rung_nets) == {400}
+    assert [s[:1] + s[3:] for s in rung[keys.EPSILON_SCREEN]] == [[0.0, 20]]  # the first screen told
+    assert outcome.attrs[keys.FRAMES_SIMULATED] == rung[keys.FRAMES] + 20 * 2000
+    assert kept_rungs({**outcome.attrs, keys.ARTIFACT_RUNG_NETS: {"400": "id"}}) == []
+    trial = optuna.trial.create_trial(state=optuna.trial.TrialState.PRUNED, user_attrs=outcome.attrs)
+    (obs,) = _observations(trial)
+    config = rung_config(TINY, 400)
+    want = features(config, screen=HALVING_GRID[:1], screen_share=[20 / 500], carried=1.0)
+    assert np.allclose(obs.features, want)
+    assert want[5] == 1.0 and want[6] == pytest.approx(features(config)[6] * 20 / 500)  # the screen alone
+    scored = climb(False)  # without the key the net is scored officially as before
+    assert scored.state == COMPLETE and scored.attrs[keys.RUNGS][0][keys.SCORE] is not None and reports == [1, 3]
 
 
 def test_the_spec_key_its_refusals_and_round_trip() -> None:

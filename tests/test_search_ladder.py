@@ -229,8 +229,12 @@ def test_weight_change_is_how_far_training_moved_the_net() -> None:
 
 def test_a_net_that_does_not_learn_is_pruned_and_told_infeasible(tmp_path: Path) -> None:
     """A rung whose training left the weights within ``min_weight_change`` of their initialisation prunes the
-    trial with its cause (scored and kept, not reported); a net that learns climbs on; the driver passes the
-    spec's threshold (never to race runs), tells samplers the constraint, and keeps the trial out of the race."""
+    trial with its cause (kept, but neither scored nor reported: no evaluation is spent on it, and its cost
+    observation is its training alone); a net that learns climbs on; the driver passes the spec's threshold (never
+    to race runs), tells samplers the constraint, and keeps the trial out of the race."""
+    from autotune.search.driver import _observations
+    from autotune.search.records import kept_rungs
+
     inert = TINY.replace(method="adagrad", learning_rate=1e-8)  # moves ~3e-7 of its norm in 400 decisions
     reports: list[int] = []
 
@@ -242,9 +246,18 @@ def test_a_net_that_does_not_learn_is_pruned_and_told_infeasible(tmp_path: Path)
     assert outcome.state == PRUNED and outcome.attrs[keys.DOES_NOT_LEARN] is True and reports == []
     rung = outcome.attrs["rungs"][0]
     assert rung[keys.WEIGHT_CHANGE] < 1e-6 and set(outcome.rung_nets) == {400}
-    assert outcome.cause == (f"does not learn at rung 0 (400 iterations, {rung[keys.SCORE]:.2f} mph): training "
-                             f"moved its weights 0.000% from their initialisation, under [ladder] "
-                             f"min_weight_change = 1.00%")  # fmt: skip
+    assert outcome.cause == (
+        "does not learn at rung 0 (400 iterations): training moved its weights 0.000% from "
+        "their initialisation, under [ladder] min_weight_change = 1.00% (not scored)"
+    )
+    assert rung[keys.SCORE] is None and keys.OFFICIAL_MEAN not in rung and rung[keys.GREEDY_CHOICES] == [0] * 5
+    assert outcome.attrs[keys.FRAMES_SIMULATED] == rung[keys.FRAMES]  # trained, never evaluated
+    with_net = {**outcome.attrs, keys.ARTIFACT_RUNG_NETS: {"400": "id"}}
+    assert kept_rungs(with_net) == []  # not a net the best single net can be
+    stored = optuna.trial.create_trial(state=optuna.trial.TrialState.PRUNED, user_attrs=outcome.attrs)
+    (obs,) = _observations(stored)
+    want = features(rung_config(inert, 400), evaluated=False)
+    assert obs.features == tuple(want) and not any(want[FEATURES.index("eval_fixed") :])
     assert climb(inert, 0.0).state == COMPLETE and reports == [1, 3]  # 0 turns it off
     learns = climb(TINY.replace(lanes_side=1, patches_ahead=4), 0.01)
     assert learns.state == COMPLETE and keys.DOES_NOT_LEARN not in learns.attrs
@@ -265,9 +278,12 @@ def test_a_net_that_does_not_learn_is_pruned_and_told_infeasible(tmp_path: Path)
     assert told.constraints == {keys.POLICY_LEARNS: 1.0} and told.state == optuna.trial.TrialState.PRUNED
     from autotune.search.driver import race_entry
 
-    assert race_entry(told) is None  # its kept 400 rung scored, but the race measures configurations that learn
-    kept = copy.deepcopy(told)
-    kept.user_attrs = {k: v for k, v in told.user_attrs.items() if k != keys.DOES_NOT_LEARN}
+    assert race_entry(told) is None  # its kept 400 rung has no score
+    flagged = copy.deepcopy(told)  # as stored before such rungs went unscored: the flag alone keeps it out
+    flagged.user_attrs[keys.RUNGS][0][keys.SCORE] = 60.0
+    assert race_entry(flagged) is None  # the race measures configurations that learn
+    kept = copy.deepcopy(flagged)
+    kept.user_attrs = {k: v for k, v in flagged.user_attrs.items() if k != keys.DOES_NOT_LEARN}
     assert race_entry(kept) is not None
 
     data = _spec().to_dict()

@@ -19,6 +19,7 @@ from autotune.convnet.netjson import dumps_net, loads_net
 from autotune.learner.brain_policy import brain_evaluation, evaluate_brain
 from autotune.learner.config import TrainConfig
 from sim.config import ConfigError, EngineConfig
+from sim.policies import NUM_ACTIONS
 from sim.protocols import OFFICIAL, PROTOCOLS, EvalResult, SequentialEvaluation
 
 __all__ = [
@@ -122,6 +123,9 @@ class EpsilonScreens:
     _paused: list[SequentialEvaluation | None]
     stages: tuple[int, ...] = ()
     """The runs of each stage (``screen_epsilons``); ``(runs,)`` for one."""
+    stopped: bool = False
+    """``screen_epsilons``'s ``stop`` ended the screening during the stage of ``runs`` (``stages``: those begun;
+    ``finalists``: the values that reached it): the net is not to be scored (``finish`` still can)."""
 
     @property
     def finalists(self) -> list[int]:
@@ -166,6 +170,8 @@ def screen_epsilons(
     *,
     protocol: str | None = None,
     progress: Callable[[int, int], None] | None = None,
+    greedy_actions: np.ndarray | None = None,
+    stop: Callable[[np.ndarray], bool] | None = None,
 ) -> EpsilonScreens:
     """Score a trained net at each ε_test of ``grid`` on the official protocol's first ``runs`` runs.
 
@@ -176,6 +182,12 @@ def screen_epsilons(
     the net's JSON round trip is done once for all of them, and on the sequential protocols (v2-official,
     v1-original) a screen carried on is continued, not restarted, and the finalists stay paused so that
     ``finish`` completes the chosen one instead of starting over.
+
+    ``greedy_actions`` (5 int64s), when given, receives how often each action was the net's greedy choice over
+    every screened run of every value (``BrainPolicy.greedy_actions`` summed). ``stop(those counts)`` is asked
+    after each screen: True ends the screening there (``EpsilonScreens.stopped``; in the first stage the grid
+    then holds the values screened so far) — the search's objective stops a static net's screens after the
+    first, since no ε_test makes it steer.
     """
     protocol = protocol or official_protocol(config)
     proto = PROTOCOLS.get(protocol)
@@ -200,6 +212,9 @@ def screen_epsilons(
         assert ev is not None
         return screen_order(values[i], ev.median_site, ev.mean)
 
+    greedy = np.zeros((len(values), NUM_ACTIONS), dtype=np.int64)  # each value's greedy choices so far
+    ran: list[int] = []
+    stopped = False
     for stage, keep in zip(stages, screen_survivors(len(values), len(stages)), strict=True):
         if len(alive) > keep:  # the better half of the last stage goes on; the others' worlds are freed
             alive = sorted(sorted(alive, key=order, reverse=True)[:keep])
@@ -213,12 +228,21 @@ def screen_epsilons(
                 ev.advance(stage - done, progress=progress)
                 frames += (stage - done) * ev.frames
                 screens[i] = ev.result()
+                greedy[i] = ev.policy.greedy_actions
             else:
                 result = evaluate_brain(net, engine, config.temporal_window, values[i], protocol, runs=stage,
-                                        progress=progress)  # fmt: skip
+                                        progress=progress, greedy_actions=greedy[i])  # fmt: skip
                 frames += result.runs * result.frames
                 screens[i] = result
-    done_screens = [ev for ev in screens if ev is not None]
-    assert len(done_screens) == len(values)
-    return EpsilonScreens(values, stages[-1], net_json, done_screens, frames, config, protocol, net, paused,
-                          stages)  # fmt: skip
+            if stop is not None and stop(greedy.sum(axis=0)):
+                stopped = True
+                break
+        ran.append(stage)
+        if stopped:
+            break
+    if greedy_actions is not None:
+        greedy_actions[:] = greedy.sum(axis=0)
+    n = sum(ev is not None for ev in screens)  # all, or (stopped in the first stage) the grid's first values
+    assert all(ev is not None for ev in screens[:n])
+    return EpsilonScreens(values[:n], ran[-1], net_json, [ev for ev in screens[:n] if ev is not None], frames,
+                          config, protocol, net, paused[:n], tuple(ran), stopped)  # fmt: skip

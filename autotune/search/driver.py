@@ -1050,7 +1050,11 @@ def _observations(t: FrozenTrial) -> list[Observation]:
             screens = rung.get(keys.EPSILON_SCREEN) or ()
             screen = [float(s[0]) for s in screens]
             shares = [float(s[3]) / runs if len(s) > 3 and runs else share for s in screens]  # a halving's own runs
-            out.append(Observation(tuple(features(config, screen=screen, screen_share=shares)), float(seconds)))
+            if rung.get(keys.SCORE, 0.0) is None:  # not scored officially: its training, and any screens it ran
+                x = features(config, evaluated=bool(screens), screen=screen, screen_share=shares, carried=1.0)
+            else:
+                x = features(config, screen=screen, screen_share=shares)
+            out.append(Observation(tuple(x), float(seconds)))
     if not t.user_attrs.get(keys.RUNGS) and t.state == TrialState.COMPLETE:
         wall = t.user_attrs.get(keys.TRIAL_WALL_SECONDS)
         if isinstance(wall, (int, float)):

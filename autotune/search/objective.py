@@ -15,7 +15,9 @@ How a trial ends (``TrialOutcome.state``):
   training left the net where it started (``min_weight_change``: it does not learn), or a
   wall-time limit passed — the trial's own (``timeout_s``) or the study's (``deadline``), checked
   about every 1 % of training and between chunks of the official evaluation; ``cause`` says which.
-  A trial stopped by a limit keeps the rungs it finished and never reports a truncated score;
+  A trial stopped by a limit keeps the rungs it finished and never reports a truncated score. A rung that
+  cannot count is not scored officially (its record's score is None): a net that does not learn is known as
+  soon as it is trained, and a static one from its ε_test screens' greedy choices, after the first;
 * ``"failed"`` — the objective raised; ``cause`` holds the traceback. (A worker that dies is the
   driver's business: it never gets to return an outcome.)
 """
@@ -76,11 +78,12 @@ class TrialTask:
     """The study's end (``time.time()`` epoch seconds): a trial still running then stops, PRUNED; None: none."""
     prune_static: bool = False
     """Prune a ladder trial at a rung whose policy is static (``static_policy``): one greedy action, or the same
-    official score as the rung before."""
+    official score as the rung before. With ``epsilon_test_grid`` the screens' greedy choices are judged after
+    each screen, and a net static there is pruned unscored (no ε_test makes it steer)."""
     min_weight_change: float = 0.0
     """Prune a ladder trial at a rung whose training moved the net's weights less than this fraction of their norm
-    from the initialisation (``TrainResult.weight_change``): scored and kept, but not reported to the pruner (its
-    score measures the initial weights' luck); 0 = never."""
+    from the initialisation (``TrainResult.weight_change``): its net is kept but not scored (a score would measure
+    the initial weights' luck, and never made a study's peak) nor reported to the pruner; 0 = never."""
     epsilon_test_grid: tuple[float, ...] = ()
     """Ladder trials: choose each rung's ε_test from these values (``choose_epsilon``) instead of the config's:
     screened on the protocol's first ``epsilon_test_screen_runs`` runs, the best scored officially; () = the
@@ -262,45 +265,62 @@ def _run_ladder(
 
         screens: list[list[float]] = []
         greedy = numpy.zeros(NUM_ACTIONS, dtype=numpy.int64)
-        if task.epsilon_test_grid:  # ε_test acts only at test time: choose it for this net, train nothing again
+        ev = None  # the official evaluation; None: the rung cannot count, and is not scored
+        learns = result.weight_change >= task.min_weight_change
+        if not learns:  # its score would be its initial weights' luck, not learning: no evaluation is spent on it
+            net_json = dumps_net(convnet)
+        elif task.epsilon_test_grid:  # ε_test acts only at test time: choose it for this net, train nothing again
+            stop = _is_static if task.prune_static else None
             screened = screen_epsilons(convnet, config, task.epsilon_test_grid, task.epsilon_test_screen_runs,
-                                       protocol=protocol, progress=eval_progress)  # fmt: skip
-            screens = [[e, float(ev.median_site), float(ev.mean), int(ev.runs)]
-                       for e, ev in zip(screened.grid, screened.screens, strict=True)]  # fmt: skip
-            chosen = screened.best  # choose_epsilon's rule, applied where the halving already ranked the screens
-            config = config.replace(epsilon_test_time=screened.grid[chosen])
-            top = top.replace(epsilon_test_time=screened.grid[chosen])  # the trial's config: its last rung's choice
-            attrs.update({keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn()})
-            ev = screened.finish(chosen, progress=eval_progress, greedy_actions=greedy)  # the screen's runs kept
+                                       protocol=protocol, progress=eval_progress, greedy_actions=greedy,
+                                       stop=stop)  # fmt: skip
+            screens = [[e, float(s.median_site), float(s.mean), int(s.runs)]
+                       for e, s in zip(screened.grid, screened.screens, strict=True)]  # fmt: skip
             attrs[keys.FRAMES_SIMULATED] += screened.frames
             net_json = screened.net_json
+            if not screened.stopped:
+                chosen = screened.best  # choose_epsilon's rule, applied where the halving already ranked the screens
+                config = config.replace(epsilon_test_time=screened.grid[chosen])
+                top = top.replace(epsilon_test_time=screened.grid[chosen])  # the trial's config: its last rung's
+                attrs.update({keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn()})
+                frames = screened.frames
+                ev = screened.finish(chosen, progress=eval_progress, greedy_actions=greedy)  # the screen's runs kept
+                attrs[keys.FRAMES_SIMULATED] += screened.frames - frames
         else:
             ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress, greedy_actions=greedy)
             attrs[keys.FRAMES_SIMULATED] += ev.runs * ev.frames
             net_json = dumps_net(convnet)
-        score = float(ev.median_site)
-        if not math.isfinite(score):  # pragma: no cover - scores are finite speeds
+        score = None if ev is None else float(ev.median_site)
+        if score is not None and not math.isfinite(score):  # pragma: no cover - scores are finite speeds
             return finish(FAILED, None, f"official score is not finite at {where}: {score!r}")
         rung_nets[budget] = net_json
         rungs.append({
             keys.BUDGET: int(budget), keys.SEED: seed, keys.SCORE: score, keys.SECONDS: time.perf_counter() - t_rung,
             keys.TRAIN_SECONDS: result.train_seconds, keys.EVAL_SECONDS: time.perf_counter() - te,
-            keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std, keys.FRAMES: int(result.frames),
-            keys.GREEDY_CHOICES: [int(n) for n in greedy], keys.WEIGHT_CHANGE: result.weight_change,
-            **({keys.EPSILON_TEST: config.epsilon_test_time, keys.EPSILON_SCREEN: screens} if screens else {}),
+            **({keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std} if ev is not None else {}),
+            keys.FRAMES: int(result.frames), keys.GREEDY_CHOICES: [int(n) for n in greedy],
+            keys.WEIGHT_CHANGE: result.weight_change,
+            **({keys.EPSILON_TEST: config.epsilon_test_time} if screens and ev is not None else {}),
+            **({keys.EPSILON_SCREEN: screens} if screens else {}),
         })  # fmt: skip
         attrs[keys.CURVE] = [
             {keys.STEP: k, keys.FRAMES: int(p.frames), keys.QUICK_SCORE: None, keys.MEAN_REWARD: _finite(p.mean_reward),
              keys.LOSS: _finite(p.loss)} for k, p in enumerate(result.curve)
         ]  # fmt: skip
-        value = score
-        if result.weight_change < task.min_weight_change:  # its score is its initial weights' luck, not learning
+        if not learns:
             attrs[keys.DOES_NOT_LEARN] = True
             return finish(PRUNED, None, (
-                f"does not learn at rung {r} ({budget:,} iterations, {score:.2f} mph): training moved its weights "
+                f"does not learn at rung {r} ({budget:,} iterations): training moved its weights "
                 f"{result.weight_change:.3%} from their initialisation, under [ladder] min_weight_change = "
-                f"{task.min_weight_change:.2%}"
+                f"{task.min_weight_change:.2%} (not scored)"
             ))  # fmt: skip
+        if ev is None:  # the screens' greedy choices were one action: no ε_test makes this net steer
+            attrs[keys.STATIC_POLICY] = True
+            why = _is_static(greedy)
+            return finish(PRUNED, None, f"static policy at rung {r} ({budget:,} iterations): {why}, over its "
+                                        f"ε_test screens (not scored officially)")  # fmt: skip
+        assert score is not None
+        value = score
         step = budget // task.rungs[0]
         if report(step, attrs[keys.FRAMES_SIMULATED], score) and r < len(task.rungs) - 1:
             return finish(PRUNED, None, f"pruned after rung {r} ({budget:,} iterations, {score:.2f} mph) by the pruner")
@@ -358,21 +378,29 @@ def static_policy(rungs: Sequence[Mapping[str, Any]]) -> str | None:
     constant net mixed with ε_test's random moves, whose score is a property of its seed (measured: one scored
     73.84 at every rung on 3 race seeds, and 64.38, 73.84 and 64.05 on fresh ones).
     """
-    from sim.policies import ACTION_NAMES
-
     last = rungs[-1]
-    greedy = last.get(keys.GREEDY_CHOICES) or []
-    total = sum(greedy)
-    if total and max(greedy) >= STATIC_SHARE * total:
-        action = ACTION_NAMES[greedy.index(max(greedy))]
-        return (f"the net chose {action} in {max(greedy) / total:.2%} of its {total:,} greedy decisions "
-                f"(the policy ignores its input)")  # fmt: skip
+    why = _is_static(last.get(keys.GREEDY_CHOICES) or [])
+    if why is not None:
+        return f"{why} (the policy ignores its input)"
     if len(rungs) > 1:
         prev = rungs[-2]
         if last[keys.SCORE] == prev[keys.SCORE] and last[keys.OFFICIAL_MEAN] == prev[keys.OFFICIAL_MEAN]:
             return (f"the same official score as at {prev[keys.BUDGET]:,} iterations, to the digit "
                     f"(mean {last[keys.OFFICIAL_MEAN]:.4f}): training changed nothing the car does")  # fmt: skip
     return None
+
+
+def _is_static(greedy: Sequence[int] | Any) -> str | None:
+    """Why greedy choice counts (one per action) are a static policy's — one action makes ``STATIC_SHARE`` of
+    them — or None (None too when there were none)."""
+    from sim.policies import ACTION_NAMES
+
+    counts = [int(n) for n in greedy]
+    total = sum(counts)
+    if not total or max(counts) < STATIC_SHARE * total:
+        return None
+    top = max(counts)
+    return f"the net chose {ACTION_NAMES[counts.index(top)]} in {top / total:.2%} of its {total:,} greedy decisions"
 
 
 def _run(

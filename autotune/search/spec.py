@@ -313,10 +313,12 @@ class StudySpec:
     to it); above it a trial climbs while its predicted cost fits the cap. 0 = the last rung (the whole ladder)."""
     ladder_prune_static: bool = True
     """[ladder] prune_static: prune a trial at a rung whose policy is static — one action in ≥ 99 % of the net's
-    greedy choices, or the previous rung's official score to the digit — and tell samplers it is infeasible."""
+    greedy choices (with an ε_test grid, judged on the screens first: such a net is not scored officially), or the
+    previous rung's official score to the digit — and tell samplers it is infeasible."""
     ladder_min_weight_change: float = MIN_WEIGHT_CHANGE
     """[ladder] min_weight_change [fraction of ‖θ₀‖]: prune a trial at a rung whose training moved the net's weights
-    less than this from their initialisation (it does not learn), and tell samplers it is infeasible; 0 = off."""
+    less than this from their initialisation (it does not learn; not scored officially), and tell samplers it is
+    infeasible; 0 = off."""
     ladder_reseed: bool = False
     """[ladder] reseed: train each rung below a trial's top from a seed of its own (``ladder.rung_seed``), so
     successive halving meets every configuration on a new seed per rung; false (the default when the key is left

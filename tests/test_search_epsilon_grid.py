@@ -225,49 +225,25 @@ def test_a_halving_trial_records_each_screens_runs_and_the_cost_model_reads_them
 
 
 @pytest.mark.parametrize("protocol", ["v2-official", "custom"])
-def test_screens_count_greedy_choices_and_stop_when_asked(protocol: str) -> None:
-    """``greedy_actions`` sums each value's greedy choices over the runs its screen reached; ``stop`` is asked
-    after each screen with those sums, and True ends the screening there: in the first stage the grid is the
-    values screened so far, each a finalist; ``stopped`` is set, and ``finish`` is still the whole evaluation."""
+def test_screens_count_each_values_greedy_choices(protocol: str) -> None:
+    """``EpsilonScreens.greedy[i]`` is what ``evaluate_official(…, runs=n, greedy_actions=…)`` counts for value i
+    over the runs n its screen reached: the best finalist's are the first runs of the official evaluation."""
     from autotune import screen_epsilons
 
     net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
-    counts = np.zeros(5, dtype=np.int64)
-    screened = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, greedy_actions=counts)
-    want = np.zeros(5, dtype=np.int64)
-    for epsilon, screen in zip(HALVING_GRID, screened.screens, strict=True):
+    screened = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol)
+    assert screened.greedy.shape == (5, 5) and screened.greedy.sum() > 0
+    for i, (epsilon, screen) in enumerate(zip(HALVING_GRID, screened.screens, strict=True)):
         alone = np.zeros(5, dtype=np.int64)
         evaluate_official(net, TINY.replace(epsilon_test_time=epsilon), protocol=protocol, runs=screen.runs,
                           greedy_actions=alone)  # fmt: skip
-        want += alone
-    assert want.sum() > 0 and np.array_equal(counts, want) and not screened.stopped
-    asked: list[np.ndarray] = []
-
-    def stop(counts: np.ndarray) -> bool:
-        asked.append(counts.copy())
-        return True
-
-    stopped = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, stop=stop)
-    assert stopped.stopped and stopped.stages == (20,) and stopped.runs == 20 and len(asked) == 1
-    assert stopped.grid == HALVING_GRID[:1] and stopped.finalists == [0] and stopped.best == 0
-    first = np.zeros(5, dtype=np.int64)
-    alone = evaluate_official(net, TINY, protocol=protocol, runs=20, greedy_actions=first)  # ε_test 0, the first
-    assert np.array_equal(asked[0], first) and stopped.screens[0].scores == alone.scores
-    assert stopped.frames == 20 * alone.frames
-    whole = stopped.finish(0)
-    assert whole.scores == evaluate_official(net, TINY, protocol=protocol).scores
-    calls = iter(range(100))
-    late = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, stop=lambda c: next(calls) == 5)
-    assert late.stopped and late.stages == (20, 50) and late.grid == HALVING_GRID  # the 6th: a finalist's 50 runs
-    assert sorted(s.runs for s in late.screens) == [20, 20, 20, 20, 50] and len(late.finalists) == 1
-    never = screen_epsilons(net, TINY, HALVING_GRID, (20, 50), protocol=protocol, stop=lambda c: False)
-    assert not never.stopped and never.stages == (20, 50) and never.finalists == screened.finalists
+        assert np.array_equal(screened.greedy[i], alone)
 
 
 def test_a_net_static_on_its_screens_is_pruned_without_its_official_score() -> None:
-    """With ``prune_static`` a rung whose screens' greedy choices are one action stops after the first screen: the
-    trial is PRUNED with the cause, the rung keeps its net and screens but has no score, nothing is reported,
-    no frames are spent past the screens, and its cost observation prices the screens without the evaluation."""
+    """With ``prune_static`` a rung whose chosen screen's greedy choices are one action is not scored: the trial is
+    PRUNED with the cause, the rung keeps its net and screens but has no score, nothing is reported, no frames are
+    spent past the screens, and its cost observation prices the screens without the evaluation."""
     from autotune.search.driver import _observations
     from autotune.search.records import kept_rungs
 
@@ -283,20 +259,27 @@ def test_a_net_static_on_its_screens_is_pruned_without_its_official_score() -> N
     (rung,) = outcome.attrs[keys.RUNGS]
     greedy = rung[keys.GREEDY_CHOICES]
     assert greedy[:4] == [0, 0, 0, 0] and greedy[4] > 0
+    screens = rung[keys.EPSILON_SCREEN]
+    chosen = choose_epsilon(screens)
     assert outcome.cause == (
-        f"static policy at rung 0 (400 iterations): the net chose right in 100.00% of its "
-        f"{greedy[4]:,} greedy decisions, over its ε_test screens (not scored officially)"
+        f"static policy at rung 0 (400 iterations): the net chose right in 100.00% of its {greedy[4]:,} greedy "
+        f"decisions of the first 50 official runs at its ε_test {screens[chosen][0]:g} (not scored officially)"
     )
     assert rung[keys.SCORE] is None and keys.EPSILON_TEST not in rung and set(outcome.rung_nets) == {400}
-    assert [s[:1] + s[3:] for s in rung[keys.EPSILON_SCREEN]] == [[0.0, 20]]  # the first screen told
-    assert outcome.attrs[keys.FRAMES_SIMULATED] == rung[keys.FRAMES] + 20 * 2000
+    assert sorted(s[3] for s in screens) == [20, 20, 20, 50, 50]
+    net = train(rung_config(TINY, 400), 3, quick_eval=False).convnet()
+    first = np.zeros(5, dtype=np.int64)
+    at = rung_config(TINY, 400).replace(epsilon_test_time=screens[chosen][0])
+    evaluate_official(net, at, runs=50, greedy_actions=first)
+    assert greedy == first.tolist()  # the chosen screen's: the official evaluation's first 50 runs
+    assert outcome.attrs[keys.FRAMES_SIMULATED] == rung[keys.FRAMES] + (5 * 20 + 2 * 30) * 2000
     assert kept_rungs({**outcome.attrs, keys.ARTIFACT_RUNG_NETS: {"400": "id"}}) == []
     trial = optuna.trial.create_trial(state=optuna.trial.TrialState.PRUNED, user_attrs=outcome.attrs)
     (obs,) = _observations(trial)
     config = rung_config(TINY, 400)
-    want = features(config, screen=HALVING_GRID[:1], screen_share=[20 / 500], carried=1.0)
+    want = features(config, screen=HALVING_GRID, screen_share=[s[3] / 500 for s in screens], carried=1.0)
     assert np.allclose(obs.features, want)
-    assert want[5] == 1.0 and want[6] == pytest.approx(features(config)[6] * 20 / 500)  # the screen alone
+    assert want[5] == 1.0 and want[6] == pytest.approx(features(config)[6] * 160 / 500)  # the screens alone
     scored = climb(False)  # without the key the net is scored officially as before
     assert scored.state == COMPLETE and scored.attrs[keys.RUNGS][0][keys.SCORE] is not None and reports == [1, 3]
 

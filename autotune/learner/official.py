@@ -123,9 +123,11 @@ class EpsilonScreens:
     _paused: list[SequentialEvaluation | None]
     stages: tuple[int, ...] = ()
     """The runs of each stage (``screen_epsilons``); ``(runs,)`` for one."""
-    stopped: bool = False
-    """``screen_epsilons``'s ``stop`` ended the screening during the stage of ``runs`` (``stages``: those begun;
-    ``finalists``: the values that reached it): the net is not to be scored (``finish`` still can)."""
+    greedy: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, NUM_ACTIONS), dtype=np.int64))
+    """How often each action (columns) was the net's greedy choice in each value's screen (rows, as ``grid``), over
+    the runs it reached (``BrainPolicy.greedy_actions``): the best finalist's are the first ``runs`` runs' of the
+    official evaluation ``finish`` would complete, so a static policy is known before it (the search's
+    ``prune_static``)."""
 
     @property
     def finalists(self) -> list[int]:
@@ -170,8 +172,6 @@ def screen_epsilons(
     *,
     protocol: str | None = None,
     progress: Callable[[int, int], None] | None = None,
-    greedy_actions: np.ndarray | None = None,
-    stop: Callable[[np.ndarray], bool] | None = None,
 ) -> EpsilonScreens:
     """Score a trained net at each ε_test of ``grid`` on the official protocol's first ``runs`` runs.
 
@@ -182,12 +182,6 @@ def screen_epsilons(
     the net's JSON round trip is done once for all of them, and on the sequential protocols (v2-official,
     v1-original) a screen carried on is continued, not restarted, and the finalists stay paused so that
     ``finish`` completes the chosen one instead of starting over.
-
-    ``greedy_actions`` (5 int64s), when given, receives how often each action was the net's greedy choice over
-    every screened run of every value (``BrainPolicy.greedy_actions`` summed). ``stop(those counts)`` is asked
-    after each screen: True ends the screening there (``EpsilonScreens.stopped``; in the first stage the grid
-    then holds the values screened so far) — the search's objective stops a static net's screens after the
-    first, since no ε_test makes it steer.
     """
     protocol = protocol or official_protocol(config)
     proto = PROTOCOLS.get(protocol)
@@ -207,14 +201,13 @@ def screen_epsilons(
     frames = 0
     alive = list(range(len(values)))
 
+    greedy = np.zeros((len(values), NUM_ACTIONS), dtype=np.int64)
+
     def order(i: int) -> tuple[float, float, float]:
         ev = screens[i]
         assert ev is not None
         return screen_order(values[i], ev.median_site, ev.mean)
 
-    greedy = np.zeros((len(values), NUM_ACTIONS), dtype=np.int64)  # each value's greedy choices so far
-    ran: list[int] = []
-    stopped = False
     for stage, keep in zip(stages, screen_survivors(len(values), len(stages)), strict=True):
         if len(alive) > keep:  # the better half of the last stage goes on; the others' worlds are freed
             alive = sorted(sorted(alive, key=order, reverse=True)[:keep])
@@ -234,15 +227,7 @@ def screen_epsilons(
                                         progress=progress, greedy_actions=greedy[i])  # fmt: skip
                 frames += result.runs * result.frames
                 screens[i] = result
-            if stop is not None and stop(greedy.sum(axis=0)):
-                stopped = True
-                break
-        ran.append(stage)
-        if stopped:
-            break
-    if greedy_actions is not None:
-        greedy_actions[:] = greedy.sum(axis=0)
-    n = sum(ev is not None for ev in screens)  # all, or (stopped in the first stage) the grid's first values
-    assert all(ev is not None for ev in screens[:n])
-    return EpsilonScreens(values[:n], ran[-1], net_json, [ev for ev in screens[:n] if ev is not None], frames,
-                          config, protocol, net, paused[:n], tuple(ran), stopped)  # fmt: skip
+    done_screens = [ev for ev in screens if ev is not None]
+    assert len(done_screens) == len(values)
+    return EpsilonScreens(values, stages[-1], net_json, done_screens, frames, config, protocol, net, paused,
+                          stages, greedy)  # fmt: skip

@@ -17,7 +17,8 @@ How a trial ends (``TrialOutcome.state``):
   about every 1 % of training and between chunks of the official evaluation; ``cause`` says which.
   A trial stopped by a limit keeps the rungs it finished and never reports a truncated score. A rung that
   cannot count is not scored officially (its record's score is None): a net that does not learn is known as
-  soon as it is trained, and a static one from its ε_test screens' greedy choices, after the first;
+  soon as it is trained, and a static one from the greedy choices of its chosen ε_test screen (the official
+  evaluation's first runs);
 * ``"failed"`` — the objective raised; ``cause`` holds the traceback. (A worker that dies is the
   driver's business: it never gets to return an outcome.)
 """
@@ -78,8 +79,8 @@ class TrialTask:
     """The study's end (``time.time()`` epoch seconds): a trial still running then stops, PRUNED; None: none."""
     prune_static: bool = False
     """Prune a ladder trial at a rung whose policy is static (``static_policy``): one greedy action, or the same
-    official score as the rung before. With ``epsilon_test_grid`` the screens' greedy choices are judged after
-    each screen, and a net static there is pruned unscored (no ε_test makes it steer)."""
+    official score as the rung before. With ``epsilon_test_grid`` the greedy choices are judged on the chosen
+    screen (the official evaluation's first runs at its ε_test), and a net static there is pruned unscored."""
     min_weight_change: float = 0.0
     """Prune a ladder trial at a rung whose training moved the net's weights less than this fraction of their norm
     from the initialisation (``TrainResult.weight_change``): its net is kept but not scored (a score would measure
@@ -266,20 +267,24 @@ def _run_ladder(
         screens: list[list[float]] = []
         greedy = numpy.zeros(NUM_ACTIONS, dtype=numpy.int64)
         ev = None  # the official evaluation; None: the rung cannot count, and is not scored
+        static: str | None = None  # why the chosen screen shows a static policy
         learns = result.weight_change >= task.min_weight_change
         if not learns:  # its score would be its initial weights' luck, not learning: no evaluation is spent on it
             net_json = dumps_net(convnet)
         elif task.epsilon_test_grid:  # ε_test acts only at test time: choose it for this net, train nothing again
-            stop = _is_static if task.prune_static else None
             screened = screen_epsilons(convnet, config, task.epsilon_test_grid, task.epsilon_test_screen_runs,
-                                       protocol=protocol, progress=eval_progress, greedy_actions=greedy,
-                                       stop=stop)  # fmt: skip
+                                       protocol=protocol, progress=eval_progress)  # fmt: skip
             screens = [[e, float(s.median_site), float(s.mean), int(s.runs)]
                        for e, s in zip(screened.grid, screened.screens, strict=True)]  # fmt: skip
             attrs[keys.FRAMES_SIMULATED] += screened.frames
             net_json = screened.net_json
-            if not screened.stopped:
-                chosen = screened.best  # choose_epsilon's rule, applied where the halving already ranked the screens
+            chosen = screened.best  # choose_epsilon's rule, applied where the halving already ranked the screens
+            greedy[:] = screened.greedy[chosen]  # the official evaluation's first runs, at its ε_test
+            why = _is_static(greedy) if task.prune_static else None
+            if why is not None:  # static already, whatever the other runs do: the official score is not worth its time
+                static = (f"static policy at rung {r} ({budget:,} iterations): {why} of the first {screened.runs} "
+                          f"official runs at its ε_test {screened.grid[chosen]:g} (not scored officially)")  # fmt: skip
+            else:
                 config = config.replace(epsilon_test_time=screened.grid[chosen])
                 top = top.replace(epsilon_test_time=screened.grid[chosen])  # the trial's config: its last rung's
                 attrs.update({keys.CONFIG: top.to_mapping(), keys.SETTINGS: top.to_deepqlearn()})
@@ -314,12 +319,10 @@ def _run_ladder(
                 f"{result.weight_change:.3%} from their initialisation, under [ladder] min_weight_change = "
                 f"{task.min_weight_change:.2%} (not scored)"
             ))  # fmt: skip
-        if ev is None:  # the screens' greedy choices were one action: no ε_test makes this net steer
+        if static is not None:  # the chosen screen's greedy choices were one action
             attrs[keys.STATIC_POLICY] = True
-            why = _is_static(greedy)
-            return finish(PRUNED, None, f"static policy at rung {r} ({budget:,} iterations): {why}, over its "
-                                        f"ε_test screens (not scored officially)")  # fmt: skip
-        assert score is not None
+            return finish(PRUNED, None, static)
+        assert ev is not None and score is not None
         value = score
         step = budget // task.rungs[0]
         if report(step, attrs[keys.FRAMES_SIMULATED], score) and r < len(task.rungs) - 1:

@@ -125,9 +125,9 @@ class EpsilonScreens:
     """The runs of each stage (``screen_epsilons``); ``(runs,)`` for one."""
     greedy: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, NUM_ACTIONS), dtype=np.int64))
     """How often each action (columns) was the net's greedy choice in each value's screen (rows, as ``grid``), over
-    the runs it reached (``BrainPolicy.greedy_actions``): the best finalist's are the first ``runs`` runs' of the
-    official evaluation ``finish`` would complete, so a static policy is known before it (the search's
-    ``prune_static``)."""
+    the runs it reached (``BrainPolicy.greedy_actions``): the best finalist's are those of the official
+    evaluation's first ``runs`` runs, which ``finish`` completes, so a static policy is known before it (the
+    search's ``prune_static``)."""
 
     @property
     def finalists(self) -> list[int]:

@@ -4,6 +4,7 @@
     python bench/ceiling.py --config dt-gsurma-deep-traffic-v00 --budgets 90000 --seeds 24
     python bench/ceiling.py --config runs/paper/journal.log:212 --budgets 270000,810000
     python bench/ceiling.py --config my_setting.toml --budgets 30000 --seeds 4 --workers 2
+    python bench/ceiling.py --config runs/paper/journal.log:160 --budgets 10000 --seeds 60 --space none
 
 Why: a study's best single net (the leaderboard's number) is the best of many trainings, so what it can
 reach is bounded by the upper tail of one configuration's scores over seeds. This measures that tail
@@ -15,7 +16,10 @@ the crowd prior enqueues them), ``JOURNAL:N`` (trial N's ``config`` user attribu
 journal file), or a TrainConfig TOML file. Each (configuration, budget, seed) is one fresh, complete
 training at that budget, the length-bound settings scaled to it exactly as a ladder rung
 (``ladder.rung_config``), trained and officially scored through the service's own ``run_trial``
-(v2-official for a v2 configuration: 500 runs × 2,000 frames, the site's median). Seeds are
+(v2-official for a v2 configuration: 500 runs × 2,000 frames, the site's median), and scored as a study
+of ``--space`` scores its rungs (default ``paper``): where its ``[ladder] epsilon_test_grid`` chooses ε_test
+per trained net, each training is screened at the grid's values and scored at the best, as a rung is;
+``--space none`` scores at the configuration's own ``epsilon_test_time``. Seeds are
 ``--seed-start`` + 0 … ``--seeds`` − 1, the same for every configuration and budget. ``--workers``
 processes, one core each (torch and numba single-threaded).
 
@@ -86,20 +90,44 @@ def _trial_config(journal: Path, number: int) -> dict[str, Any]:
     return dict(trials[number].user_attrs["config"])
 
 
-def job(args: tuple[dict[str, Any], int, int]) -> dict[str, Any]:
+Scoring = tuple[tuple[float, ...], tuple[int, ...]]
+"""(ε_test grid, its screens' run counts) a training is scored with; an empty grid: the config's own ε_test."""
+
+
+def scoring(space: str) -> Scoring:
+    """How a study of ``space`` (a study_configs name or a TOML path; 'none': no grid) scores a rung's net."""
+    if space == "none":
+        return (), ()
+    from autotune.search.spec import SpecError, load_spec
+
+    path = Path(space) if space.endswith(".toml") else ROOT / "study_configs" / f"{space}.toml"
+    if not path.is_file():
+        raise BenchError(f"--space {space}: no such spec ({path}); give a study_configs name (paper), a TOML "
+                         f"path or none (the configuration's own epsilon_test_time)")  # fmt: skip
+    try:
+        spec = load_spec(path)
+    except SpecError as exc:
+        raise BenchError(f"--space: {exc}") from None  # the spec error names the file, table and key
+    return tuple(spec.ladder_epsilon_grid), tuple(spec.ladder_epsilon_screen_runs)
+
+
+def job(args: tuple[dict[str, Any], int, int, Scoring]) -> dict[str, Any]:
     """One fresh training of ``config`` at ``budget`` from ``seed``, officially scored (a worker process)."""
-    config, budget, seed = args
+    config, budget, seed, (grid, screens) = args
     from autotune.learner.config import TrainConfig
     from autotune.search.ladder import rung_config
     from autotune.search.objective import TrialTask, run_trial
 
     at_budget = rung_config(TrainConfig.from_mapping(config), budget)
+    # a grid acts on ladder trials: a one-rung ladder at the budget is this training, its ε_test chosen as a rung's
     task = TrialTask(number=0, config=at_budget.to_mapping(), seed=seed, report_points=1, quick_runs=1,
-                     quick_frames=200, timeout_s=None)  # fmt: skip
+                     quick_frames=200, timeout_s=None, rungs=(budget,) if grid else (), epsilon_test_grid=grid,
+                     epsilon_test_screen_runs=screens or TrialTask.epsilon_test_screen_runs)  # fmt: skip
     t0 = time.time()
     out = run_trial(task, lambda _k, _frames, _score: False)
+    rungs = out.attrs.get("rungs") or [{}]
     return {"budget": budget, "seed": seed, "state": out.state, "score": out.value, "cause": out.cause,
-            "seconds": time.time() - t0}  # fmt: skip
+            "epsilon_test": rungs[-1].get("chosen_epsilon_test"), "seconds": time.time() - t0}  # fmt: skip
 
 
 def _init_worker() -> None:
@@ -140,6 +168,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--seeds", type=int, default=6, help="fresh seeds per configuration and budget")
     p.add_argument("--seed-start", type=int, default=8_100_001, help="the first seed")
     p.add_argument("--workers", type=int, default=2, help="processes, one core each")
+    p.add_argument(
+        "--space",
+        default="paper",
+        help="score as this spec's rungs ([ladder] epsilon_test_grid); none: the config's ε_test",
+    )
     args = p.parse_args(argv)
     try:
         args.budget_list = [int(b) for b in args.budgets.split(",") if b.strip()]
@@ -157,6 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         configs = {source: load_config(source) for source in args.config}
+        scored = scoring(args.space)
     except BenchError as exc:
         print(f"ceiling: {exc}", file=sys.stderr)
         return 2
@@ -166,10 +200,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.time()
     results: dict[tuple[str, int], list[dict[str, Any]]] = {}
     with mp.get_context("spawn").Pool(args.workers, initializer=_init_worker) as pool:
-        outs = pool.imap(job, [(configs[src], b, s) for src, b, s in todo])
+        outs = pool.imap(job, [(configs[src], b, s, scored) for src, b, s in todo])
         for (source, budget, seed), out in zip(todo, outs, strict=True):
             results.setdefault((source, budget), []).append(out)
             shown = f"{out['score']:.2f}" if out["score"] is not None else f"{out['state']} ({out['cause']})"
+            if out.get("epsilon_test") is not None:
+                shown += f" at ε_test {out['epsilon_test']:g}"
             print(f"[{time.time() - t0:7.0f} s] {source} at {budget:,}, seed {seed}: {shown} ({out['seconds']:.0f} s)",
                   file=sys.stderr)  # fmt: skip
     report = []
@@ -190,6 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{row['median']:>7.2f} {row['min']:>6.2f} {row['max']:>6.2f} {share['74']:>5.0%} {share['75']:>5.0%} "
               f"{share['75.5']:>5.0%} {best['10']:>6.2f} {best['30']:>6.2f} {best['100']:>6.2f}")  # fmt: skip
     print("JSON " + json.dumps({"rows": report, "wall_s": time.time() - t0, "workers": args.workers,
+                                "epsilon_test_grid": list(scored[0]), "space": args.space,
                                 "load_start": load_start, "load_end": os.getloadavg()}))  # fmt: skip
     return 0
 

@@ -591,6 +591,41 @@ def test_the_race_winner_is_paired_on_the_seeds_every_finalist_has() -> None:
     assert [st.number for st in racing.standings(field, early, 2)] == [11, 10, 12, 13]
 
 
+def test_signed_rank_is_wilcoxons_statistic_of_the_paired_differences() -> None:
+    assert racing.signed_rank([3.0, 1.0, 4.0], [1.0, 2.0, 0.0]) == 3 - 1 + 2  # d = 2, −1, 4: ranks 2, 1, 3
+    assert racing.signed_rank([1.0, 5.0], [1.0, 4.0]) == 1  # a zero difference is dropped
+    assert racing.signed_rank([2.0, 0.0, 3.0], [1.0, 1.0, 1.5]) == 1.5 - 1.5 + 3  # |d| 1, 1 tied: rank 1.5 each
+    assert racing.signed_rank([74.1, 73.3], [73.1, 73.5]) == -racing.signed_rank([73.1, 73.5], [74.1, 73.3]) == 1
+    assert racing.signed_rank([], []) == 0
+
+
+def results_of(results: dict[tuple[int, int], float | None], number: int) -> list[float]:
+    return [v for (n, _s), v in sorted(results.items()) if n == number and v is not None]
+
+
+def test_one_collapsed_race_seed_does_not_decide_the_race() -> None:
+    """The race of a crowd-prior benchmark study (trial numbers and scores as recorded): 25 won three of its four
+    seeds against 105 and collapsed on one. By the mean 105 won (73.09 against 72.28), and averaged 70.81 on three
+    fresh seeds; by the signed ranks 25 wins, which scored 74.08–75.44 on 11 of 12 fresh seeds at 90k."""
+    field = [105, 25, 1, 51]
+    results: dict[tuple[int, int], float | None] = {
+        (105, 0): 73.32, (105, 1): 73.32, (25, 0): 74.77, (25, 1): 74.79, (1, 0): 73.32, (1, 1): 70.76,
+        (51, 0): 72.39, (51, 1): 61.18,
+    }  # fmt: skip
+    runs, over = racing.next_runs(field, results, set(results), 2)
+    assert not over and sorted((r.race_of, r.seed_index) for r in runs) == [(25, 2), (25, 3), (105, 2), (105, 3)]
+    results.update({(105, 2): 73.36, (105, 3): 72.37, (25, 2): 64.41, (25, 3): 75.16})
+    assert racing.next_runs(field, results, set(results), 2) == ([], True)
+    ranked = racing.standings(field, results, 2)
+    assert [st.number for st in ranked] == [25, 105, 1, 51]
+    assert ranked[0].mean < ranked[1].mean  # the mean alone would have crowned 105
+    assert racing.signed_rank(results_of(results, 25), results_of(results, 105)) == 1 + 2 + 3 - 4  # one seed lost
+    assert ranked[0].finalist and not any(st.finalist for st in ranked[1:])  # the halving's last survivor
+    # a second collapse is no longer one seed among four: 105 wins back
+    results[(25, 1)] = 65.0
+    assert racing.standings(field, results, 2)[0].number == 105
+
+
 def test_a_race_run_the_deadline_stopped_is_run_again_and_not_held_against_it(tmp_path: Path) -> None:
     """The driver's race state and ``race_summary`` classify race runs with ``racing.run_result``: a run the
     deadline stopped is neither launched nor a result (a resumed race runs it again), and the summary's winner

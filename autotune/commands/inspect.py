@@ -128,7 +128,7 @@ def _best(args: argparse.Namespace) -> int:
         w = race["winner"]
         sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""
         print(
-            f"best configuration by mean over fresh seeds: trial {w['trial']}'s settings{_at(w)}: "
+            f"best configuration over fresh seeds (the seed race): trial {w['trial']}'s settings{_at(w)}: "
             f"{w['mean']:.2f}{sd} mph (n = {w['n']} fresh seeds; {w['selecting_value']:.2f} with the seed that "
             "selected it)"
         )
@@ -137,6 +137,7 @@ def _best(args: argparse.Namespace) -> int:
                 f"  (won on the {w['ranked_on']} fresh seed(s) every finalist finished: {w['paired_mean']:.2f} mph; "
                 "a run the deadline stopped counts for no finalist)"
             )
+        print("  (ranked by paired per-seed comparisons, Wilcoxon's signed ranks: one collapsed seed is one lost seed)")
         for row in race["standings"][1:]:
             if row["n"]:
                 paired = (
@@ -149,7 +150,7 @@ def _best(args: argparse.Namespace) -> int:
                     f"{paired}{' (finalist)' if row['finalist'] else ''}"
                 )
     elif race is not None:
-        print("best configuration by mean over fresh seeds: the seed race has no finished run yet")
+        print("best configuration over fresh seeds (the seed race): no finished run yet")
     for key, value in record["params"].items():
         print(f"  {key} = {value}")
     config = record.get("config", {})

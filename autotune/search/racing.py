@@ -4,14 +4,23 @@ A search result is a best-of-many, and one seed moves a DeepTraffic score by sev
 settings score 75.15 and 71.06 with seeds 1 and 2), so the best trial's value overstates its
 configuration. The last part of a study's time therefore races the best ``race_configs`` distinct
 configurations: round j retrains every survivor with the same ``race_seeds`` fresh seeds (paired
-comparisons: every configuration meets the same seeds), then keeps the better half by the mean over
-all its fresh seeds so far — successive halving over seeds. The seed that selected a configuration
-is left out of its mean. A race run is an ordinary trial (its own net and official score).
+comparisons: every configuration meets the same seeds), then keeps the better half — successive
+halving over seeds. The seed that selected a configuration is left out. A race run is an ordinary
+trial (its own net and official score).
+
+Configurations are ranked by paired per-seed comparisons, Wilcoxon's signed ranks (``signed_rank``):
+each pair's score differences on their shared seeds, ranked by size and summed with their signs, and
+each configuration's sum against all the others; the mean breaks a tie. Why not the mean alone: one
+seed in about ten collapses (a crowd-prior study's entrant scored 74.77, 74.79, 75.16 and 64.41 on its
+race seeds, and 74.08–75.44 on 11 of 12 fresh seeds at 90k, 66.27 on the 12th), and one collapsed seed
+out of four decides a mean — that race crowned a configuration that had scored 72.37–73.36 on the same
+seeds and averaged 70.81 on 3 fresh ones. The signed ranks count a collapse as one lost seed, however
+deep. With two seeds the comparison of two configurations is the mean's.
 
 The winner is decided the same paired way: among the finalists (the survivors of the halving so
-far), the best mean over the seeds every finalist with a result has one for. A run the study's
-deadline stopped is no result (missing for every finalist, not held against the one it stopped); a
-run that failed, or that its own time limit stopped, is a result that ranks its configuration last.
+far), on the seeds every finalist with a result has one for. A run the study's deadline stopped is no
+result (missing for every finalist, not held against the one it stopped); a run that failed, or that
+its own time limit stopped, is a result that ranks its configuration last.
 
 Pure functions of plain records, so the race's state is whatever the study holds: a resumed driver
 rebuilds it from the trials' ``race_of`` / ``race_seed`` attributes.
@@ -29,7 +38,8 @@ from typing import Any
 from autotune.search.seeds import derived_seed
 
 __all__ = [
-    "Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "run_result", "standings", "RACE_SALT",
+    "Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "run_result", "signed_rank",
+    "standings", "RACE_SALT",
 ]  # fmt: skip
 
 RACE_SALT = 0x5EED_2ACE
@@ -73,6 +83,9 @@ class RaceStanding:
     paired: tuple[float, ...] | None = None
     """A finalist's results on the seeds every finalist with a result has one for (−inf: a failed run); None
     otherwise."""
+    signed_ranks: float | None = None
+    """A finalist's summed signed-rank statistic against the other finalists on those seeds (``signed_rank``;
+    None: not compared, or a failed run on them)."""
 
     @property
     def mean(self) -> float:
@@ -108,6 +121,32 @@ def entrants(candidates: Iterable[tuple[int, float, Mapping[str, Any]]], n: int)
     return out
 
 
+def signed_rank(a: Sequence[float], b: Sequence[float]) -> float:
+    """Wilcoxon's signed-rank statistic of paired results: Σ sign(d)·rank(|d|) over the differences d = a − b.
+
+    Zero differences are dropped; tied |d| share their mean rank. Positive: ``a`` won its seeds by more
+    rank than it lost. A seed's weight is its rank, not its size, so one collapsed training is one seed lost.
+    """
+    d = [round(x - y, 9) for x, y in zip(a, b, strict=True)]
+    d = [x for x in d if x != 0.0]
+    size = sorted(abs(x) for x in d)
+    rank = {v: (size.index(v) + 1 + len(size) - size[::-1].index(v)) / 2 for v in set(size)}  # mean rank of ties
+    return float(sum(math.copysign(rank[abs(x)], x) for x in d))
+
+
+def _paired_order(ids: Sequence[int], table: Mapping[int, Sequence[float]], field: Sequence[int]) -> list[int]:
+    """``ids`` best first by their paired results ``table[n]`` (the same seeds each; −inf: a failed run): a
+    failed one last; the others by their summed signed ranks against one another, then mean, then field order."""
+    ok = [n for n in ids if all(math.isfinite(x) for x in table[n])]
+    total = {n: sum(signed_rank(table[n], table[m]) for m in ok if m != n) for n in ok}
+
+    def key(n: int) -> tuple[float, ...]:
+        mean = statistics.fmean(table[n]) if n in total and table[n] else -math.inf
+        return (float(n not in total), -total.get(n, 0.0), -mean, float(field.index(n)))
+
+    return sorted(ids, key=key)
+
+
 def _survivors(
     field: Sequence[int], results: Mapping[tuple[int, int], float | None], seeds_per_round: int
 ) -> tuple[list[int], int, bool]:
@@ -120,17 +159,15 @@ def _survivors(
         if not done or len(alive) <= 1:
             return alive, rnd, done
         upto = (rnd + 1) * seeds_per_round
-        ranked = sorted(alive, key=lambda n: (-_mean(n, results, upto), field.index(n)))
+        ranked = _paired_order(alive, {n: _results(n, results, upto) for n in alive}, field)
         alive = ranked[: math.ceil(len(alive) / 2)]
         rnd += 1
 
 
-def _mean(number: int, results: Mapping[tuple[int, int], float | None], upto: int) -> float:
-    """Mean over fresh seeds 0 … upto − 1; −inf if any of them failed (a configuration that fails ranks last)."""
+def _results(number: int, results: Mapping[tuple[int, int], float | None], upto: int) -> tuple[float, ...]:
+    """Results on fresh seeds 0 … upto − 1 (−inf where a run failed: its configuration ranks last)."""
     scores = [results.get((number, s)) for s in range(upto)]
-    if any(x is None or not math.isfinite(x) for x in scores):
-        return -math.inf
-    return statistics.fmean(x for x in scores if x is not None)
+    return tuple(float(x) if x is not None and math.isfinite(x) else -math.inf for x in scores)
 
 
 def next_runs(
@@ -177,28 +214,30 @@ def standings(
 ) -> list[RaceStanding]:
     """Every entrant's fresh-seed record, the winner first.
 
-    The finalists (``_survivors``) come first, by their mean over the seeds every finalist with a
-    result has one for: paired, like the halving, so a seed the deadline stopped for one finalist is
-    left out for all instead of deciding the race by who finished more runs. Finalists without a
-    result yet, then the others, follow by how far they got (fresh seeds finished), then their
-    mean. Ties keep the field's order.
+    The finalists (``_survivors``) come first, ranked on the seeds every finalist with a result has one
+    for by their signed ranks against one another, then their mean there (``_paired_order``, as the
+    halving): a seed the deadline stopped for one finalist is left out for all instead of deciding the
+    race by who finished more runs. Finalists without a result yet, then the others, follow by how far
+    they got (fresh seeds finished), then their mean. Ties keep the field's order.
     """
     field = list(field)
     alive, _rnd, _done = _survivors(field, results, seeds_per_round)
     finalists = set(alive)
     compared = [n for n in alive if any(m == n for (m, _s) in results)]  # a finalist not yet run waits, not blocks
     common = sorted(s for s in {s for (_n, s) in results} if all((n, s) in results for n in compared))
+    pairs: dict[int, tuple[float, ...]] = {}
+    for n in compared if common else ():
+        got = [results[(n, s)] for s in common]
+        pairs[n] = tuple(float(x) if x is not None and math.isfinite(x) else -math.inf for x in got)
+    order = {n: i for i, n in enumerate(_paired_order(list(pairs), pairs, field))}
+    ok = [n for n in pairs if all(math.isfinite(x) for x in pairs[n])]
     out = []
     for n in field:
         scores = tuple(v for (m, _s), v in sorted(results.items()) if m == n and v is not None and math.isfinite(v))
-        paired = None
-        if n in compared and common:
-            got = [results[(n, s)] for s in common]
-            paired = tuple(float(x) if x is not None and math.isfinite(x) else -math.inf for x in got)
-        out.append(RaceStanding(n, scores, n in finalists, paired))
+        ranks = sum(signed_rank(pairs[n], pairs[m]) for m in ok if m != n) if n in ok else None
+        out.append(RaceStanding(n, scores, n in finalists, pairs.get(n), ranks))
 
     def rank(st: RaceStanding) -> tuple[float, ...]:
-        paired = st.paired_mean if st.paired_mean is not None else -math.inf
-        return (-float(st.finalist), -paired, -len(st.scores), -st.mean, field.index(st.number))
+        return (-float(st.finalist), order.get(st.number, math.inf), -len(st.scores), -st.mean, field.index(st.number))
 
     return sorted(out, key=rank)

@@ -627,10 +627,10 @@ def race_setup(study_attrs: Mapping[str, Any]) -> tuple[list[int], int]:
 def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     """The seed race's standings (``autotune.search.racing``): each entrant's fresh-seed mean ± sd and n.
 
-    None when the study has not raced. The winner (``racing.standings``) is the finalist with the best
-    mean over the fresh seeds every finalist has a result for (``ranked_on`` of them; a run the deadline
-    stopped is left out for all): the configuration to retrain, as opposed to the best single net (the
-    leaderboard's number). An entrant raced at a kept rung's budget (``budget``, else None) was
+    None when the study has not raced. The winner (``racing.standings``) is the finalist ranked first by
+    paired signed ranks, then mean, on the fresh seeds every finalist has a result for (``ranked_on`` of them;
+    a run the deadline stopped is left out for all): the configuration to retrain, as opposed to the best
+    single net (the leaderboard's number). An entrant raced at a kept rung's budget (``budget``, else None) was
     selected by that rung's score.
     """
     from autotune.search import racing

@@ -83,9 +83,6 @@ class RaceStanding:
     paired: tuple[float, ...] | None = None
     """A finalist's results on the seeds every finalist with a result has one for (−inf: a failed run); None
     otherwise."""
-    signed_ranks: float | None = None
-    """A finalist's summed signed-rank statistic against the other finalists on those seeds (``signed_rank``;
-    None: not compared, or a failed run on them)."""
 
     @property
     def mean(self) -> float:
@@ -159,14 +156,14 @@ def _survivors(
         if not done or len(alive) <= 1:
             return alive, rnd, done
         upto = (rnd + 1) * seeds_per_round
-        ranked = _paired_order(alive, {n: _results(n, results, upto) for n in alive}, field)
+        ranked = _paired_order(alive, {n: _results(n, results, range(upto)) for n in alive}, field)
         alive = ranked[: math.ceil(len(alive) / 2)]
         rnd += 1
 
 
-def _results(number: int, results: Mapping[tuple[int, int], float | None], upto: int) -> tuple[float, ...]:
-    """Results on fresh seeds 0 … upto − 1 (−inf where a run failed: its configuration ranks last)."""
-    scores = [results.get((number, s)) for s in range(upto)]
+def _results(number: int, results: Mapping[tuple[int, int], float | None], seeds: Iterable[int]) -> tuple[float, ...]:
+    """Results on the fresh seeds ``seeds`` (−inf where a run failed: its configuration ranks last)."""
+    scores = [results.get((number, s)) for s in seeds]
     return tuple(float(x) if x is not None and math.isfinite(x) else -math.inf for x in scores)
 
 
@@ -225,17 +222,12 @@ def standings(
     finalists = set(alive)
     compared = [n for n in alive if any(m == n for (m, _s) in results)]  # a finalist not yet run waits, not blocks
     common = sorted(s for s in {s for (_n, s) in results} if all((n, s) in results for n in compared))
-    pairs: dict[int, tuple[float, ...]] = {}
-    for n in compared if common else ():
-        got = [results[(n, s)] for s in common]
-        pairs[n] = tuple(float(x) if x is not None and math.isfinite(x) else -math.inf for x in got)
+    pairs = {n: _results(n, results, common) for n in compared} if common else {}
     order = {n: i for i, n in enumerate(_paired_order(list(pairs), pairs, field))}
-    ok = [n for n in pairs if all(math.isfinite(x) for x in pairs[n])]
     out = []
     for n in field:
         scores = tuple(v for (m, _s), v in sorted(results.items()) if m == n and v is not None and math.isfinite(v))
-        ranks = sum(signed_rank(pairs[n], pairs[m]) for m in ok if m != n) if n in ok else None
-        out.append(RaceStanding(n, scores, n in finalists, pairs.get(n), ranks))
+        out.append(RaceStanding(n, scores, n in finalists, pairs.get(n)))
 
     def rank(st: RaceStanding) -> tuple[float, ...]:
         return (-float(st.finalist), order.get(st.number, math.inf), -len(st.scores), -st.mean, field.index(st.number))

@@ -662,6 +662,74 @@ def test_a_race_run_the_deadline_stopped_is_run_again_and_not_held_against_it(tm
     assert summary["standings"][1]["n"] == 2 and summary["standings"][1]["finalist"]
 
 
+def test_the_race_winner_gets_more_seeds_only_once_the_halving_is_over() -> None:
+    """``tail_run``: nothing while the halving runs; then the winner's first seed index not yet started (a running
+    one counts); a field of one takes its tail after its first round. ``tail_reaches``: within the reach of the
+    study's best single net, not below it, never without a finite run."""
+    field = [105, 25, 1, 51]
+    results: dict[tuple[int, int], float | None] = {
+        (105, 0): 73.32, (105, 1): 73.32, (25, 0): 74.77, (25, 1): 74.79, (1, 0): 73.32, (1, 1): 70.76,
+        (51, 0): 72.39, (51, 1): 61.18,
+    }  # fmt: skip
+    assert racing.tail_run(field, results, set(results), 2) is None  # round 1 of the halving not run yet
+    results.update({(105, 2): 73.36, (105, 3): 72.37, (25, 2): 64.41, (25, 3): 75.16})
+    assert racing.next_runs(field, results, set(results), 2) == ([], True)
+    assert racing.tail_run(field, results, set(results), 2) == racing.RaceRun(25, 4)
+    assert racing.tail_run(field, results, set(results) | {(25, 4)}, 2) == racing.RaceRun(25, 5)  # 4 is running
+    assert racing.tail_run([7], {(7, 0): 70.0}, {(7, 0), (7, 1)}, 2) is None  # its first round still runs
+    assert racing.tail_run([7], {(7, 0): 70.0, (7, 1): 71.0}, {(7, 0), (7, 1)}, 2) == racing.RaceRun(7, 2)
+    assert racing.tail_reaches([74.77, 64.41, 75.16], 75.16) and racing.tail_reaches([74.7], 75.16)
+    assert not racing.tail_reaches([74.12, 74.09], 74.96)  # a cold hour's winner: 0.84 below its study's best
+    assert not racing.tail_reaches([None], 70.0) and racing.tail_reaches([70.0], None)
+
+
+def test_the_race_winner_takes_the_time_left_while_its_runs_reach_the_best_net(tmp_path: Path) -> None:
+    """The driver's ``_race_runs``: after the halving, the winner's next seed while its best run reaches the study's
+    best single net (kept rungs count), one run of it fits the time left and the trial budget is not spent."""
+    spec = _spec(race_configs=2, race_seeds=1, n_trials=5, timeout_s=3600).with_overrides(
+        storage=str(tmp_path / "j.log"))  # fmt: skip
+    storages = open_storage(spec.study.storage, spec.study.name)
+    driver = Driver(spec, storages)
+    study = driver.open_study()
+    dists = distributions(spec)
+    params = space.encode(spec, TINY)
+    done = optuna.trial.TrialState.COMPLETE
+
+    def add(value: float, **attrs: Any) -> None:
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=done,
+                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+
+    add(74.0)
+    add(73.0)
+    study.set_user_attr(keys.RACE_FIELD, [0, 1])
+    add(73.6, **{keys.RACE_OF: 0, keys.RACE_SEED: 0})
+    add(72.0, **{keys.RACE_OF: 1, keys.RACE_SEED: 0})
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    assert driver._race_runs() == ([racing.RaceRun(0, 1)], False)  # noqa: SLF001 - 73.6 is within 0.5 of 74.0
+    driver.pool = FakePool()
+    assert driver._launch_race(0)  # noqa: SLF001
+    (run,) = [t for t in study.trials if t.user_attrs.get(keys.RACE_SEED) == 1]
+    assert run.user_attrs[keys.RACE_OF] == 0 and run.user_attrs[keys.SEED] == racing.race_seed(spec.study.seed, 1)
+    assert driver._race_runs() == ([racing.RaceRun(0, 2)], False)  # noqa: SLF001 - the other worker's
+    study.add_trial(optuna.trial.create_trial(
+        params=params, distributions=dists, state=optuna.trial.TrialState.PRUNED,
+        user_attrs={keys.CONFIG: TINY.to_mapping(), keys.OFFICIAL_PROTOCOL: "v2-official",
+                    keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 74.5}], keys.ARTIFACT_RUNG_NETS: {"400": "id"}},
+    ))  # fmt: skip
+    assert driver._race_runs() == ([], True)  # noqa: SLF001 - a kept 74.5 rung: 73.6 no longer reaches it
+    assert not driver._launch_race(1) and driver._race_over  # noqa: SLF001
+    driver._race_over = False  # noqa: SLF001
+    add(74.3, **{keys.RACE_OF: 0, keys.RACE_SEED: 2})  # the winner's tail reaches it again
+    assert driver._race_runs()[1] is False  # noqa: SLF001
+    driver._t0 = time.perf_counter() - 3600 + 0.01  # noqa: SLF001 - no run fits the time left
+    assert driver._race_runs() == ([], True)  # noqa: SLF001
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    spent = Driver(spec.with_overrides(n_trials=3), storages)
+    spent.open_study()
+    spent._t0 = time.perf_counter()  # noqa: SLF001
+    assert spent._race_runs() == ([], True)  # noqa: SLF001 - 3 original trials used the budget of 3
+
+
 def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
     """--warm-start STUDY: the earlier study's COMPLETE trials enter the sampler's history, once, using no budget."""
     from autotune.search.gate import distributions

@@ -29,7 +29,8 @@ travels with every task, so at ``timeout_s`` running trials stop (PRUNED, the fi
 Warm start: the crowd prior (``warm_configs``, enqueued once, every one trained and measured) and
 another study's measured trials copied into the sampler's history. Seed race: the last
 ``race_fraction`` of ``timeout_s`` retrains the best configurations with fresh seeds
-(``autotune.search.racing``), each run an ordinary trial with ``race_of`` / ``race_seed``.
+(``autotune.search.racing``), then its winner while that winner's runs reach the study's best net, each run an
+ordinary trial with ``race_of`` / ``race_seed``.
 
 Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
 (``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express
@@ -49,7 +50,7 @@ import socket
 import tempfile
 import time
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -647,11 +648,37 @@ class Driver:
         rungs = source.user_attrs.get(keys.RUNGS)
         return trained_rung_config(TrainConfig.from_mapping(config), int(budget), rungs).to_mapping()
 
+    def _race_runs(self) -> tuple[list[racing.RaceRun], bool]:
+        """(race runs to launch now, is the race over?): the halving's next runs, then the winner's tail.
+
+        Once the halving leaves one configuration, the winner takes the next fresh seed while its best run
+        reaches the study's best single net (``racing.tail_reaches``), one run of it fits the time left (padded by
+        ``RACE_MARGIN``) and the trial budget is not spent (a study that ends by ``n_trials`` ends after its race)."""
+        field, results, launched = self._race_state()
+        seeds = self.spec.study.race_seeds
+        runs, over = racing.next_runs(field, results, launched, seeds)
+        if not over:
+            return runs, False
+        tail = racing.tail_run(field, results, launched, seeds)
+        if tail is None:
+            return [], True
+        assert self.study is not None
+        trials = self.study.get_trials(deepcopy=False)
+        scores = [v for (n, _s), v in results.items() if n == tail.race_of]
+        self._refresh_counts()
+        budget = self.spec.study.n_trials
+        if (
+            not racing.tail_reaches(scores, _best_score(trials))
+            or self._race_cost(self._raced_config(trials[tail.race_of])) * RACE_MARGIN > self._time_left()
+            or (budget is not None and self.counts.started >= budget)
+        ):
+            return [], True
+        return [tail], False
+
     def _launch_race(self, slot: int) -> bool:
         """Start the next race run on ``slot``; False when none can start now (round running, or race over)."""
         assert self.study is not None
-        field, results, launched = self._race_state()
-        runs, over = racing.next_runs(field, results, launched, self.spec.study.race_seeds)
+        runs, over = self._race_runs()
         if over:
             self._race_over = True
             return False
@@ -834,8 +861,7 @@ class Driver:
         if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
             return True
         if self._race_window():
-            field, results, launched = self._race_state()
-            if not racing.next_runs(field, results, launched, self.spec.study.race_seeds)[1]:
+            if not self._race_runs()[1]:
                 return True
             self._race_over = True
         self._refresh_counts()
@@ -1127,6 +1153,15 @@ def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, 
                                                   t.user_attrs.get(keys.RUNGS)).to_mapping()  # fmt: skip
     except (ConfigError, TypeError, ValueError):
         return None
+
+
+def _best_score(trials: Sequence[FrozenTrial]) -> float | None:
+    """The study's best single net's score (``records.best_net``'s: every COMPLETE value and kept rung); None
+    before any."""
+    found = [score for t in trials for _b, score in kept_rungs(t.user_attrs)]
+    found += [float(t.value) for t in trials if t.state == TrialState.COMPLETE and t.value is not None]
+    found = [x for x in found if math.isfinite(x)]
+    return max(found) if found else None
 
 
 def _original(t: FrozenTrial) -> bool:

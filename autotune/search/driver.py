@@ -74,7 +74,7 @@ from autotune.search.objective import (
     process_alive,
     process_start,
 )
-from autotune.search.records import kept_rungs, net_rank
+from autotune.search.records import net_rank, scored_nets
 from autotune.search.seeds import derived_seed
 from autotune.search.spec import SpecError, StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
@@ -1135,14 +1135,10 @@ def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, 
     config = t.user_attrs.get(keys.CONFIG)
     if not isinstance(config, dict) or _never_learned(t.user_attrs):
         return None
-    found: list[tuple[float, int | None]] = [
-        (score, budget) for budget, score in kept_rungs(t.user_attrs) if budget >= min_budget
-    ]
     top = config.get("train_iterations")
     reached = min_budget <= 0 or (isinstance(top, int) and top >= min_budget)  # the value's own budget
-    if t.state == TrialState.COMPLETE and t.value is not None and reached:
-        found.append((float(t.value), None))
-    found = [f for f in found if math.isfinite(f[0])]
+    found = [(score, budget) for score, budget in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)
+             if math.isfinite(score) and (reached if budget is None else budget >= min_budget)]  # fmt: skip
     if not found:
         return None
     score, budget = max(found, key=lambda f: net_rank(f[0], f[1], t.number))
@@ -1156,12 +1152,9 @@ def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, 
 
 
 def _best_score(trials: Sequence[FrozenTrial]) -> float | None:
-    """The study's best single net's score (``records.best_net``'s: every COMPLETE value and kept rung); None
-    before any."""
-    found = [score for t in trials for _b, score in kept_rungs(t.user_attrs)]
-    found += [float(t.value) for t in trials if t.state == TrialState.COMPLETE and t.value is not None]
-    found = [x for x in found if math.isfinite(x)]
-    return max(found) if found else None
+    """The study's best single net's score (``records.best_net``'s, over ``scored_nets``); None before any."""
+    found = [score for t in trials for score, _b in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)]
+    return max((x for x in found if math.isfinite(x)), default=None)
 
 
 def _original(t: FrozenTrial) -> bool:

@@ -45,6 +45,7 @@ __all__ = [
     "best_net",
     "kept_rungs",
     "net_rank",
+    "scored_nets",
     "best_trial_record",
     "export_best",
     "export_best_net",
@@ -340,6 +341,15 @@ def kept_rungs(user_attrs: Mapping[str, Any]) -> list[tuple[int, float]]:
             if str(r.get(keys.BUDGET)) in kept and r.get(keys.SCORE) is not None]  # fmt: skip
 
 
+def scored_nets(user_attrs: Mapping[str, Any], value: float | None, complete: bool) -> list[tuple[float, int | None]]:
+    """(score, budget) of every net a trial trained and scored officially: its kept rungs (``kept_rungs``) and, when
+    it is COMPLETE, its value (budget None: its top)."""
+    found: list[tuple[float, int | None]] = [(score, budget) for budget, score in kept_rungs(user_attrs)]
+    if complete and value is not None:
+        found.append((float(value), None))
+    return found
+
+
 def net_rank(score: float, budget: int | None, number: int) -> tuple[float, int, int]:
     """Sort key of a scored net (higher is better): the score, then a trial's value (``budget`` None) over a
     rung's, then the earlier trial."""
@@ -359,10 +369,7 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
     best: tuple[tuple[float, int, int], dict[str, Any]] | None = None
     for trial in study.trials:
         attrs = trial.user_attrs
-        found: list[tuple[float, int | None]] = [(score, budget) for budget, score in kept_rungs(attrs)]
-        if trial.state == "COMPLETE" and trial.value is not None:
-            found.append((float(trial.value), None))
-        for score, budget in found:
+        for score, budget in scored_nets(attrs, trial.value, trial.state == "COMPLETE"):
             rank = net_rank(score, budget, trial.number)
             if best is None or rank > best[0]:
                 best = (rank, {"trial": trial.number, "budget": budget, "score": score, "state": trial.state,

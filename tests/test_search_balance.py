@@ -191,9 +191,66 @@ def test_balance_is_checked_against_the_space() -> None:
 
 def test_paper_balances_the_trainer_method() -> None:
     spec = load_spec("study_configs/paper.toml")
-    assert spec.study.balance == ("method",) and spec.study.balance_min_share == 0.2
+    assert spec.study.balance == ("method", "n_layers") and spec.study.balance_min_share == 0.2
+    assert spec.study.balance_values == (("n_layers", (1,)),)
     spec = dataclasses.replace(spec, study=dataclasses.replace(spec.study, denoise=False))  # denoise: its own test
     sampler = make_sampler(spec, 0)
     assert isinstance(sampler, BalancedSampler) and isinstance(sampler.base, optuna.samplers.TPESampler)
     plain = make_sampler(dataclasses.replace(spec, study=dataclasses.replace(spec.study, balance=())), 0)
     assert isinstance(plain, optuna.samplers.TPESampler)
+
+
+def _layer_trap(params: dict[str, Any]) -> float:
+    """``_greedy`` where linear nets look good at once (+3) and only one tanh layer of 8 units does better (+5)."""
+    if params["n_layers"] == 1 and params["activation_0"] == "tanh":
+        return _greedy(params) + 5.0 - 3.0 * abs(params["neurons_0"] - 8)
+    return _greedy(params) + (-8.0 if params["n_layers"] else 3.0)
+
+
+def test_one_hidden_layer_keeps_its_share() -> None:
+    """``balance_values = {n_layers = [1]}``: the layer count (an integer) is balanced on one value. Free TPE draws
+    pile onto linear nets here and never beat them (78); with a fifth of the draws kept on one hidden layer, whose
+    width and activation are modelled on the one-layer trials, the study finds the tanh layer of 8 (above 78)."""
+    free = _run_with(_spec(balance=["method"], balance_min_share=0.2), _layer_trap, 60)
+    assert collections.Counter(t.params["n_layers"] for t in free.trials)[1] < 0.2 * 60
+    assert max(t.value for t in free.trials if t.value is not None) < 78.0
+    spec = _spec(balance=["method", "n_layers"], balance_values={"n_layers": [1]}, balance_min_share=0.2)
+    assert spec.study.balance_values == (("n_layers", (1,)),) and parse_spec(spec.to_dict()) == spec
+    forced: list[tuple[str, Any]] = []
+    study = _run_with(spec, _layer_trap, 60, forced)
+    assert ("n_layers", 1) in forced  # the floor bound at least once
+    for k in range(1, 61):
+        layers = collections.Counter(t.params["n_layers"] for t in study.trials[:k])
+        methods = collections.Counter(t.params["method"] for t in study.trials[:k])
+        assert layers[1] >= math.floor(0.2 * k) and all(methods[m] >= math.floor(0.2 * k) for m in METHODS), k
+    best = max(study.trials, key=lambda t: t.value or 0.0)
+    assert best.value is not None and best.value > 78.0 and best.params["activation_0"] == "tanh"
+
+
+def _run_with(spec: StudySpec, score: Any, n: int, forced: list[tuple[str, Any]] | None = None) -> optuna.Study:
+    sampler = make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0)
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    for _ in range(n):
+        trial = study.ask()
+        params = space.sample(trial, spec)
+        why = sampler.base.forced(trial.number)  # type: ignore[attr-defined]
+        if why is not None and forced is not None:
+            assert params[why[0]] == why[1]
+            forced.append(why)
+        study.tell(trial, score(params))
+    return study
+
+
+def test_balance_values_are_checked() -> None:
+    with pytest.raises(SpecError, match=r"\[study\] balance: n_layers is an integer: name the values"):
+        _spec(balance=["n_layers"])
+    with pytest.raises(SpecError, match=r"\[study\] balance_values: n_layers value 3 is not in \[space\] n_layers"):
+        _spec(balance=["n_layers"], balance_values={"n_layers": [3]})
+    with pytest.raises(SpecError, match=r"\[study\] balance_values: 'n_layer' is not in balance"):
+        _spec(balance=["method"], balance_values={"n_layer": [1]})
+    with pytest.raises(SpecError, match=r"\[study\] balance_values: must be a table of non-empty lists"):
+        _spec(balance=["n_layers"], balance_values={"n_layers": []})
+    with pytest.raises(SpecError, match=r"\[study\] balance_values: method value 'sdg' is not in \[space\] method"):
+        _spec(balance=["method"], balance_values={"method": ["sdg"]})
+    one = _spec(balance=["method"], balance_values={"method": ["sgd"]}, balance_min_share=0.9)
+    assert one.study.balance_min_share == 0.9  # one value with a floor: its share may go up to 1

@@ -28,6 +28,7 @@ the study) reached 72 at 9.9 % against 14.7 %.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
@@ -42,22 +43,33 @@ __all__ = ["BalancedSampler", "OWN_PARAMETERS", "conditional_startup", "forced_v
 
 OWN_PARAMETERS: Mapping[str, frozenset[str]] = {
     "method": frozenset({"learning_rate", "learning_rate_x_inputs", "momentum", "l2_decay", "l1_decay"}),
+    "n_layers": frozenset(
+        {"neurons", "activation", "learning_rate", "learning_rate_x_inputs", "momentum", "l2_decay", "l1_decay"}
+    ),
 }
 """For a balanced parameter, the parameters whose good values depend on its value: a forced draw models them on
 the trials with the forced value alone, and every other parameter on all trials. The trainer methods scale a
 step differently (sgd by the rate and momentum, adagrad by its gradient history, adadelta ignores the rate), so
 each keeps its own rate; the view, the other agents, γ, ε and the layers mean the same under every method. A
-balanced parameter not named here models every parameter on its value's trials."""
+balanced parameter not named here models every parameter on its value's trials. A layout slot (``neurons_2``,
+``activation_0``) goes by its base name. For the layer count, a net's width, activations and step size depend on
+how many layers it has; what it sees and how it is rewarded do not."""
 
 
-def forced_value(counts: dict[Any, int], min_share: float) -> Any | None:
+def _base_name(name: str) -> str:
+    """``neurons_2`` → ``neurons``: the fixed-shape layout's slots share their parameter's entry."""
+    return re.sub(r"_\d+$", "", name) if name.startswith(("neurons_", "activation_")) else name
+
+
+def forced_value(counts: dict[Any, int], min_share: float, drawn: int | None = None) -> Any | None:
     """The value a draw must take so that each value keeps ``min_share`` of the draws, or None.
 
-    ``counts`` holds every value (in the order of its choices) and how many sampled trials have it; the next
-    draw makes ``n + 1`` of them. The value furthest below ``min_share × (n + 1)`` is forced (the first such in
-    choice order on a tie), so the first draws of a study go round the values.
+    ``counts`` holds every value with a floor (in the order of its choices) and how many sampled trials have it;
+    ``drawn`` the number of sampled trials (default: the sum of ``counts``, when every value has a floor); the next
+    draw makes ``drawn + 1`` of them. The value furthest below ``min_share × (drawn + 1)`` is forced (the first such
+    in choice order on a tie), so the first draws of a study go round the values.
     """
-    floor = min_share * (sum(counts.values()) + 1)
+    floor = min_share * ((sum(counts.values()) if drawn is None else drawn) + 1)
     short = [(c, i, v) for i, (v, c) in enumerate(counts.items()) if c < floor]
     return min(short)[2] if short else None
 
@@ -82,6 +94,10 @@ def _sampled(trial: FrozenTrial) -> bool:
 class BalancedSampler(BaseSampler):
     """``base``'s draws, except that each value of each parameter in ``balance`` keeps ``min_share`` of them.
 
+    ``balance`` maps a parameter to the values given that floor: a categorical parameter's choices, or some
+    values of an integer one (the layer count: ``{"n_layers": [1]}``); ``distributions`` holds the space's
+    distribution of each balanced parameter (default: categorical over the values given).
+
     ``conditional`` draws a forced draw's parameters that depend on the forced value (``own``, by balanced
     parameter; default ``OWN_PARAMETERS``; a parameter not in it: all of them) from the trials sharing that
     value (a sampler of the same kind, its startup count scaled to one value's share); ``base`` draws the rest
@@ -95,6 +111,7 @@ class BalancedSampler(BaseSampler):
         balance: Mapping[str, Sequence[Any]],
         min_share: float,
         own: Mapping[str, Collection[str]] | None = None,
+        distributions: Mapping[str, BaseDistribution] | None = None,
     ) -> None:
         if not balance:
             raise ValueError("balance: name at least one categorical parameter")
@@ -108,6 +125,8 @@ class BalancedSampler(BaseSampler):
         self._min_share = float(min_share)
         own = OWN_PARAMETERS if own is None else own
         self._own = {name: frozenset(own[name]) for name in self._balance if name in own}
+        given = dict(distributions or {})
+        self._distributions = {n: given.get(n, CategoricalDistribution(list(c))) for n, c in self._balance.items()}
         self._forced: dict[int, tuple[str, Any]] = {}
 
     @property
@@ -132,7 +151,7 @@ class BalancedSampler(BaseSampler):
                 v = t.params.get(name)
                 if v in counts:
                     counts[v] += 1
-            value = forced_value(counts, self._min_share)
+            value = forced_value(counts, self._min_share, sum(1 for t in drawn if name in t.params))
             if value is not None:
                 return name, value
         return None
@@ -140,7 +159,7 @@ class BalancedSampler(BaseSampler):
     def infer_relative_search_space(self, study: Study, trial: FrozenTrial) -> dict[str, BaseDistribution]:
         # the balanced parameters always belong, so a forced value is set even while the base draws at random
         space = self._base.infer_relative_search_space(study, trial)
-        return {**space, **{n: CategoricalDistribution(list(c)) for n, c in self._balance.items() if n not in space}}
+        return {**space, **{n: d for n, d in self._distributions.items() if n not in space}}
 
     def sample_relative(
         self, study: Study, trial: FrozenTrial, search_space: dict[str, BaseDistribution]
@@ -153,12 +172,14 @@ class BalancedSampler(BaseSampler):
         self._forced[trial.number] = short
         own = self._own.get(name)
         params: dict[str, Any] = {}
-        shared = {} if own is None else {k: d for k, d in search_space.items() if k != name and k not in own}
+        shared = (
+            {} if own is None else {k: d for k, d in search_space.items() if k != name and _base_name(k) not in own}
+        )
         if shared:  # what every trial taught: the base's model of the parameters the forced value does not change
             params.update((k, v) for k, v in self._base.sample_relative(study, trial, shared).items() if k in shared)
         view: Any = _Subset(study, name, value)
         rest = {k: d for k, d in self._conditional.infer_relative_search_space(view, trial).items()
-                if k != name and (own is None or k in own)}  # fmt: skip
+                if k != name and (own is None or _base_name(k) in own)}  # fmt: skip
         if rest:
             params.update((k, v) for k, v in self._conditional.sample_relative(view, trial, rest).items() if k in rest)
         params[name] = value

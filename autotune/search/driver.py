@@ -164,11 +164,13 @@ def make_sampler(
         raise ConfigError(f"{spec.source}: [study] sampler: '{name}' needs the '{needs}' package; pip install {needs}")
     base = _base_sampler(spec, seed, name)
     if spec.study.balance:  # each value of a balanced parameter keeps its share (``balance.BalancedSampler``)
-        dims = spec.dimensions
-        choices = {n: dims[n].choices for n in spec.study.balance}
-        per_value = conditional_startup(spec.study.sampler_startup_trials, max(len(c) for c in choices.values()))
+        dims, given = spec.dimensions, dict(spec.study.balance_values)
+        floors = {n: given.get(n, dims[n].choices) for n in spec.study.balance}
+        per_value = conditional_startup(spec.study.sampler_startup_trials, max(len(c) for c in floors.values()))
         conditional = _base_sampler(spec, seed + 1, name, startup=per_value)
-        base = BalancedSampler(base, conditional, choices, spec.study.balance_min_share)
+        dists = distributions(spec)
+        base = BalancedSampler(base, conditional, floors, spec.study.balance_min_share,
+                               distributions={n: dists[n] for n in floors})  # fmt: skip
     if spec.study.denoise:  # the history at a forest's estimate of each trial, not its own noisy score
         base = DenoisedSampler(base, denoise_reference_step(spec), seed, quantile=spec.study.denoise_quantile)
     if price is None:

@@ -4,7 +4,7 @@ Five tables, every key optional unless said otherwise::
 
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
-                  balance, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb
+                  balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -205,6 +205,9 @@ class StudySection:
     (``autotune.search.balance``; e.g. ["method"]: TPE cannot starve a trainer method)."""
     balance_min_share: float = BALANCE_MIN_SHARE
     """Share of the sampled trials each value of a balanced parameter gets at least (≤ 1 / its choices)."""
+    balance_values: tuple[tuple[str, tuple[Any, ...]], ...] = ()
+    """For a balanced parameter, the values given that share (default: every choice); the layer count (an integer)
+    is balanced only on the values named here (e.g. {n_layers = [1]}: a fifth of the draws with one hidden layer)."""
     denoise: bool = False
     """Show the sampler each finished trial at a regression forest's score for its parameters at the ladder's
     min_top, not at its own noisy score (``autotune.search.denoise``; TPE and random samplers)."""
@@ -418,8 +421,12 @@ class StudySpec:
             ladder["epsilon_test_grid"] = list(self.ladder_epsilon_grid)
             stages = self.ladder_epsilon_screen_runs  # one stage as a number, as stored before the halving
             ladder["epsilon_test_screen_runs"] = stages[0] if len(stages) == 1 else list(stages)
+        study = dataclasses.asdict(self.study)
+        values = study.pop("balance_values")
+        if values:  # left out when empty, so a study stored before the key existed still matches
+            study["balance_values"] = {name: list(v) for name, v in values}
         return {
-            "study": dataclasses.asdict(self.study),
+            "study": study,
             "fixed": dict(self.fixed),
             "space": {d.name: d.to_dict() for d in self.space},
             "evaluation": dataclasses.asdict(self.evaluation),
@@ -589,6 +596,16 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
                           'write balance = ["method"]')  # fmt: skip
     if len(set(balance)) != len(balance):
         raise where.error("balance", f"names a parameter twice: {list(balance)!r}", "name each parameter once")
+    values = table.get("balance_values", {})
+    if not isinstance(values, dict) or not all(isinstance(v, list) and v for v in values.values()):
+        raise where.error("balance_values", f"must be a table of non-empty lists of values, got {values!r}",
+                          "write balance_values = { n_layers = [1] }")  # fmt: skip
+    for key in values:
+        if key not in balance:
+            raise where.error("balance_values", f"{key!r} is not in balance{_hint(key, list(balance))}",
+                              f'add it: balance = {[*balance, key]!r}'.replace("'", '"'))  # fmt: skip
+        if len(set(map(repr, values[key]))) != len(values[key]):
+            raise where.error("balance_values", f"{key} names a value twice: {values[key]!r}", "name each value once")
     share = _float(table.get("balance_min_share", d.balance_min_share), f"{src}: [study] balance_min_share", 0.0, 1.0)
     if share <= 0.0:
         raise where.error("balance_min_share", f"must be above 0, got {share}",
@@ -610,7 +627,8 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         memory = _pos_float(memory, f"{src}: [study] max_trial_memory_gb")
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
-        startup, cap, race, race_configs, race_seeds, tuple(balance), share, denoise, quantile, memory,
+        startup, cap, race, race_configs, race_seeds, tuple(balance), share,
+        tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory,
     )  # fmt: skip
 
 
@@ -902,7 +920,8 @@ def _check_value(
 
 
 def _check_balance(spec: StudySpec) -> None:
-    """[study] balance names categorical, non-layout [space] parameters whose values can all get the share."""
+    """[study] balance names categorical, non-layout [space] parameters (or the layer count, with the values given
+    a floor in balance_values), every one of whose floored values exists and can get the share."""
     st = spec.study
     where = _Where(spec.source, "study")
     if st.balance and st.sampler not in BALANCEABLE_SAMPLERS:
@@ -910,15 +929,29 @@ def _check_balance(spec: StudySpec) -> None:
                           'use sampler = "tpe" (or "random"), or remove balance')  # fmt: skip
     dims = spec.dimensions
     categorical = [n for n, d in dims.items() if d.kind == "categorical" and n not in LAYOUT]
+    valid = categorical + (["n_layers"] if "n_layers" in dims else [])
+    given = dict(st.balance_values)
     for name in st.balance:
         d = dims.get(name)
-        if d is None or d.kind != "categorical" or name in LAYOUT:
+        if d is None or name not in valid:
             what = "is not in [space]" if d is None else "is not a categorical [space] parameter of its own"
-            valid = ", ".join(categorical) or "none (the space has no such parameter)"
-            raise where.error("balance", f"{name!r} {what}{_hint(name, categorical)}", f"name one of: {valid}")
-        if st.balance_min_share * len(d.choices) > 1.0 + 1e-12:
-            raise where.error("balance_min_share", f"{st.balance_min_share} × the {len(d.choices)} values of "
-                              f"{name} is over 1", f"use at most {1 / len(d.choices):.4g}")  # fmt: skip
+            named = ", ".join(valid) or "none (the space has no such parameter)"
+            raise where.error("balance", f"{name!r} {what}{_hint(name, valid)}", f"name one of: {named}")
+        if d.kind != "categorical" and name not in given:
+            raise where.error("balance", f"{name} is an integer: name the values to keep a share of the draws",
+                              f"add balance_values = {{ {name} = [1] }}")  # fmt: skip
+        floored = given.get(name, d.choices)
+        for v in floored:
+            inside = v in d.choices if d.kind == "categorical" else (
+                isinstance(v, int) and not isinstance(v, bool) and d.low is not None and d.high is not None
+                and d.low <= v <= d.high)  # fmt: skip
+            if not inside:
+                span = list(d.choices) if d.kind == "categorical" else f"integers {d.low:g}–{d.high:g}"
+                raise where.error("balance_values", f"{name} value {v!r} is not in [space] {name}",
+                                  f"use values of {span}")  # fmt: skip
+        if st.balance_min_share * len(floored) > 1.0 + 1e-12:
+            raise where.error("balance_min_share", f"{st.balance_min_share} × the {len(floored)} values of "
+                              f"{name} is over 1", f"use at most {1 / len(floored):.4g}")  # fmt: skip
 
 
 def _check_combination(spec: StudySpec) -> None:

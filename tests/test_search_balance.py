@@ -191,8 +191,8 @@ def test_balance_is_checked_against_the_space() -> None:
 
 def test_paper_balances_the_trainer_method() -> None:
     spec = load_spec("study_configs/paper.toml")
-    assert spec.study.balance == ("method", "n_layers") and spec.study.balance_min_share == 0.2
-    assert spec.study.balance_values == (("n_layers", (1,)),)
+    assert spec.study.balance == ("method",) and spec.study.balance_min_share == 0.2
+    assert spec.study.balance_values == ()  # every method: the default
     spec = dataclasses.replace(spec, study=dataclasses.replace(spec.study, denoise=False))  # denoise: its own test
     sampler = make_sampler(spec, 0)
     assert isinstance(sampler, BalancedSampler) and isinstance(sampler.base, optuna.samplers.TPESampler)

@@ -541,6 +541,8 @@ class TrialRow:
     race_of: int | None = None
     race_seed: int | None = None
     """Fresh seed index of a race run (with ``race_of``)."""
+    incumbent: bool = False
+    """A race run the search started before the race (``incumbent_run``: ``[study] intensify_share``)."""
     predicted_cost_s: float | None = None
     cause: str | None = None
     retryable: bool = False
@@ -570,6 +572,7 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 warm_start=a.get("warm_start"),
                 race_of=a.get("race_of"),
                 race_seed=a.get("race_seed"),
+                incumbent=bool(a.get("incumbent_run")),
                 predicted_cost_s=a.get("predicted_cost_s"),
                 cause=a.get("cause"),
                 retryable=bool(a.get("retryable")),
@@ -784,7 +787,17 @@ def run_figures(rows: Sequence[TrialRow], wall_s: float, workers: int, limit_s: 
         "refused_share": refused_share(rows),
         "worst_overrun": worst_overrun(rows, limit_s),
         "running_best": running_best(rows),
+        **incumbent_figures(rows, workers * wall_s),
     }
+
+
+def incumbent_figures(rows: Sequence[TrialRow], worker_s: float) -> dict[str, Any]:
+    """The incumbent's runs before the race: how many, their share of the worker time, their best score."""
+    runs = [r for r in rows if r.incumbent]
+    scores = [r.value for r in runs if r.state == "COMPLETE" and r.value is not None]
+    busy = sum(r.wall_s or 0.0 for r in runs)
+    return {"incumbent_runs": len(runs), "incumbent_share": busy / worker_s if worker_s > 0 else None,
+            "incumbent_best": max(scores) if scores else None}  # fmt: skip
 
 
 def arm_checkpoints(runs: Sequence[Mapping[str, Any]], minutes: Sequence[float]) -> list[dict[str, Any]]:
@@ -1203,7 +1216,9 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
                 f"{st['PRUNED']} pruned{_causes(run.get('pruned_by'))}, {st['FAIL']} failed), cost model error "
                 f"{_pct(run['cost_model_median_error'])} "
                 f"(n={run['cost_model_n']}), limit-stopped {_pct(run['limit_share'])} of worker time, refused draws "
-                f"{_pct(run['refused_share'])}, worst trial {_f(run['worst_overrun'])}× its limit, reseeding "
+                f"{_pct(run['refused_share'])}, worst trial {_f(run['worst_overrun'])}× its limit, "
+                f"{run.get('incumbent_runs', 0)} incumbent runs ({_pct(run.get('incumbent_share'))} of worker time, "
+                f"best {_f(run.get('incumbent_best'))}), reseeding "
                 f"{_f(run.get('reseed_wall_s'), '.0f')} s, load {run['load_start']} → {run['load_end']}"
             )
     ref = result.get("reference") or {}

@@ -263,6 +263,12 @@ def test_running_best_and_the_run_figures() -> None:
     figures = sq.run_figures(rows, 100.0, 2, 50.0)
     assert figures["states"] == {"COMPLETE": 4, "PRUNED": 1, "FAIL": 0, "RUNNING": 0}
     assert figures["pruned_by"] == {"trial limit": 1}
+    assert (figures["incumbent_runs"], figures["incumbent_share"], figures["incumbent_best"]) == (0, 0.0, None)
+    early = [dataclasses.replace(rows[1], race_of=0, race_seed=0, incumbent=True),
+             dataclasses.replace(rows[2], race_of=0, race_seed=1, incumbent=True)]  # fmt: skip
+    assert sq.incumbent_figures(early + rows[3:], 200.0) == {
+        "incumbent_runs": 2, "incumbent_share": pytest.approx(0.25), "incumbent_best": 69.0,
+    }  # fmt: skip
     causes = ["does not learn at rung 0 (…)", "static policy at rung 1 (…)", "does not learn at rung 0 (…)",
               "pruned after rung 0 (…) by the pruner", "diverged at rung 2, …", "deadline: …", "lost"]  # fmt: skip
     pruned = [row(k, None, 10.0 * k, cause=c) for k, c in enumerate(causes)]

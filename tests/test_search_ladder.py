@@ -730,6 +730,90 @@ def test_the_race_winner_takes_the_time_left_while_its_runs_reach_the_best_net(t
     assert spent._race_runs() == ([], True)  # noqa: SLF001 - 3 original trials used the budget of 3
 
 
+def test_the_incumbent_is_the_best_candidate_whose_runs_reach_the_best_net() -> None:
+    """``incumbent_run``: the first candidate whose selecting score and finished fresh runs reach the study's best
+    single net; its first seed index not started (a running one counts); none once every candidate trails."""
+    a, b, c = (racing.Entrant(n, v, str(n)) for n, v in ((25, 75.11), (79, 74.9), (3, 73.0)))
+    assert racing.incumbent_run([a, b, c], {}, set(), 75.11) == racing.RaceRun(25, 0)
+    assert racing.incumbent_run([a, b, c], {}, set(), None) == racing.RaceRun(25, 0)  # no best yet: the first
+    results: dict[tuple[int, int], float | None] = {(25, 0): 74.77}
+    assert racing.incumbent_run([a, b, c], results, {(25, 0), (25, 1)}, 75.11) == racing.RaceRun(25, 2)
+    results = {(25, 0): 74.12, (25, 1): 74.09}  # its fresh seeds trail by 0.99: the next candidate's turn
+    assert racing.incumbent_run([a, b, c], results, set(results), 75.11) == racing.RaceRun(79, 0)
+    assert racing.incumbent_run([a, b, c], {(25, 0): None}, {(25, 0)}, 75.11) == racing.RaceRun(79, 0)  # failed
+    assert racing.incumbent_run([a, b, c], results, set(results), 75.5) is None  # 74.9 trails a 75.5 rung
+    results = {(25, 0): 75.7}  # its own fresh seed set the study's best: it stays the incumbent
+    assert racing.incumbent_run([a, b, c], results, set(results), 75.7) == racing.RaceRun(25, 1)
+    assert racing.incumbent_run([c], {}, set(), 75.11) is None
+
+
+def test_intensify_share_is_a_share_of_the_workers_and_needs_a_race() -> None:
+    assert _spec().study.intensify_share == 0.0
+    assert _spec(intensify_share=0.5).study.intensify_share == 0.5
+    with pytest.raises(SpecError, match=r"\[study\] intensify_share: 1.5 is out of range; use \[0, 1\]"):
+        _spec(intensify_share=1.5)
+    with pytest.raises(SpecError, match=r"intensify_share: .*race_fraction = 0; set race_fraction"):
+        _spec(intensify_share=0.5, race_fraction=0.0)
+    with pytest.raises(SpecError, match=r"intensify_shar.*did you mean 'intensify_share'"):
+        _spec(intensify_shar=0.5)
+
+
+def test_the_search_retrains_its_incumbent_on_the_race_seeds_before_the_race(tmp_path: Path) -> None:
+    """The driver's ``_launch_incumbent``: before the race, the incumbent's next race seed on its share of the
+    workers — an ordinary race run at the ε_test and budget that selected it, marked ``incumbent_run`` — after the
+    queue, never in the race window, never with ``intensify_share`` 0; the race then runs only the seeds it lacks."""
+    spec = _spec(race_configs=2, race_seeds=2, n_trials=20, timeout_s=3600, intensify_share=0.5).with_overrides(
+        storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    storages = open_storage(spec.study.storage, spec.study.name)
+    driver = Driver(spec, storages)
+    study = driver.open_study()
+    dists = distributions(spec)
+    params = space.encode(spec, TINY)
+    done = optuna.trial.TrialState.COMPLETE
+    chosen = TINY.replace(epsilon_test_time=0.05).to_mapping()
+
+    def add(value: float, config: dict[str, Any] = chosen, **attrs: Any) -> None:
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=done,
+                                                  user_attrs={keys.CONFIG: config, **attrs}))  # fmt: skip
+
+    def finish(slot: int, value: float) -> None:
+        study.tell(driver._running.pop(slot).trial, value)  # noqa: SLF001
+
+    add(74.0)
+    add(73.0, TINY.replace(batch_size=4).to_mapping())
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    driver.pool = FakePool()
+    assert driver._launch_incumbent(0)  # noqa: SLF001
+    run = study.trials[-1]
+    assert run.user_attrs[keys.RACE_OF] == 0 and run.user_attrs[keys.RACE_SEED] == 0
+    assert run.user_attrs[keys.INCUMBENT_RUN] is True and run.user_attrs[keys.CONFIG] == chosen
+    assert run.user_attrs[keys.SEED] == racing.race_seed(spec.study.seed, 0)
+    task = driver.pool.tasks[-1]
+    assert task.rungs == (TINY.train_iterations,) and not task.prune_static and task.epsilon_test_grid == ()
+    assert not driver._launch_incumbent(1)  # noqa: SLF001 - half of the 2 workers: one such run at a time
+    finish(0, 73.7)
+    assert driver._launch_incumbent(0)  # noqa: SLF001 - 73.7 reaches 74.0: its next seed
+    assert study.trials[-1].user_attrs[keys.RACE_SEED] == 1
+    finish(0, 72.0)
+    study.enqueue_trial(params)  # the queue (a crowd setting, a retry) comes first
+    assert not driver._launch_incumbent(0)  # noqa: SLF001
+    assert driver._launch_next(0)  # noqa: SLF001
+    finish(0, 70.0)
+    add(74.5, TINY.replace(batch_size=16).to_mapping())  # a new best: trial 0's seeds (73.7, 72.0) trail it
+    assert driver._launch_incumbent(0) and study.trials[-1].user_attrs[keys.RACE_OF] == 5  # noqa: SLF001
+    finish(0, 74.4)
+    idle = Driver(dataclasses.replace(spec, study=dataclasses.replace(spec.study, intensify_share=0.0)), storages)
+    idle.open_study()
+    idle._t0, idle.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert not idle._launch_incumbent(0)  # noqa: SLF001
+    driver._t0 = time.perf_counter() - 0.8 * 3600  # noqa: SLF001 - the race window: the race takes over
+    assert not driver._launch_incumbent(0)  # noqa: SLF001
+    field, results, launched = driver._race_state()  # noqa: SLF001
+    assert field == [5, 0] and results[(5, 0)] == 74.4 and results[(0, 1)] == 72.0
+    runs, over = racing.next_runs(field, results, launched, 2)
+    assert not over and runs == [racing.RaceRun(5, 1)]  # trial 0 ran both seeds of round 0 before the race
+
+
 def test_warm_start_from_a_study_copies_measured_trials(tmp_path: Path) -> None:
     """--warm-start STUDY: the earlier study's COMPLETE trials enter the sampler's history, once, using no budget."""
     from autotune.search.gate import distributions

@@ -17,6 +17,7 @@ import optuna
 import pytest
 
 from autotune.search.driver import StudyCounts, race_entry
+from autotune.search.racing import race_seed
 from autotune.search.spec import load_spec
 from tests.test_search_launch import finish, launch, load, tagged_processes
 
@@ -146,6 +147,36 @@ def test_the_race_starts_in_the_last_part_of_the_time(tmp_path: Path) -> None:
     # further seeds while its runs reach the study's best (then a worker may take a draw the time left affords)
     last = max(t.datetime_start for t in race if t.datetime_start is not None)
     assert all(t.datetime_start is not None and t.datetime_start >= last for t in later), [t.number for t in later]
+
+
+@pytest.mark.slow
+def test_the_search_retrains_its_incumbent_before_the_race(tmp_path: Path) -> None:
+    """With ``intensify_share``, race runs start before the race window: the incumbent's, on the race's seeds
+    (from index 0, at its entry's configuration), one at a time on half of the 2 workers; the race then takes
+    them as its own."""
+    spec = tmp_path / "race.toml"
+    text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 90")
+    spec.write_text(text.replace("race_seeds = 1\n", "race_seeds = 1\nintensify_share = 0.5\n"))
+    code, out, err = finish(launch(tmp_path, str(spec), tag="raci-" + tmp_path.name), timeout=400)
+    assert code == 0, err
+    study = load(tmp_path, "race")
+    trials = study.get_trials(deepcopy=False)
+    early = [t for t in trials if t.user_attrs.get("incumbent_run")]
+    assert early, "no incumbent run before the race"
+    min_budget = load_spec(spec).race_min_budget
+    for t in early:
+        assert "race_of" in t.user_attrs and "race_seed" in t.user_attrs, t.number
+        assert t.user_attrs["seed"] == race_seed(0, t.user_attrs["race_seed"])
+        entry = race_entry(trials[t.user_attrs["race_of"]], min_budget)
+        assert entry is not None and t.user_attrs["config"] == entry[2]
+    first = early[0].user_attrs["race_of"]
+    seeds = sorted(t.user_attrs["race_seed"] for t in early if t.user_attrs["race_of"] == first)
+    assert seeds[0] == 0 and seeds == sorted(set(seeds))  # from the first race seed, each once
+    spans = sorted((t.datetime_start, t.datetime_complete) for t in early if t.datetime_start and t.datetime_complete)
+    # one at a time: the next starts as the last ends (its worker's next task, a moment before the result is told)
+    assert all((a[1] - b[0]).total_seconds() < 2.0 for a, b in zip(spans, spans[1:], strict=False)), spans
+    assert study.user_attrs.get("race_field"), "no race after the incumbent's runs"
+    assert tagged_processes("raci-" + tmp_path.name) == []
 
 
 def test_race_runs_use_no_budget_and_are_not_called_retries() -> None:

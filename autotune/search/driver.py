@@ -30,7 +30,8 @@ Warm start: the crowd prior (``warm_configs``, enqueued once, every one trained 
 another study's measured trials copied into the sampler's history. Seed race: the last
 ``race_fraction`` of ``timeout_s`` retrains the best configurations with fresh seeds
 (``autotune.search.racing``), then its winner while that winner's runs reach the study's best net, each run an
-ordinary trial with ``race_of`` / ``race_seed``.
+ordinary trial with ``race_of`` / ``race_seed``. Before the race, ``intensify_share`` of the workers retrain
+the incumbent on the race's seeds while its runs reach the study's best net (``_launch_incumbent``).
 
 Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
 (``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express
@@ -267,6 +268,8 @@ class _Running:
     """A race run: its score is not reported to the pruner (it is not a rung of the ladder)."""
     sampled: bool = False
     """Drawn by the sampler (not enqueued: no crowd setting, race run or retry)."""
+    incumbent: bool = False
+    """A race run the search started before the race (``_launch_incumbent``)."""
 
 
 class Driver:
@@ -507,6 +510,13 @@ class Driver:
             if raced_at:  # stored before the field: a driver that resumes the race finds both
                 self.study.set_user_attr(keys.RACE_BUDGETS, raced_at)
             self.study.set_user_attr(keys.RACE_FIELD, field)
+        results, launched = self._race_results()
+        return list(field), results, launched
+
+    def _race_results(self) -> tuple[dict[tuple[int, int], float | None], set[tuple[int, int]]]:
+        """(results, launched) of every race run so far, the incumbent's before the race included: (race_of, seed
+        index) → score of the finished ones (``racing.run_result``), and those finished or under way."""
+        assert self.study is not None
         results: dict[tuple[int, int], float | None] = {}
         launched: set[tuple[int, int]] = set()
         for t in self.study.get_trials(deepcopy=False):
@@ -520,7 +530,7 @@ class Driver:
                 results[key] = score
             if is_result or t.state in (TrialState.RUNNING, TrialState.WAITING):
                 launched.add(key)  # a failed run's retry (same race_of / race_seed) or a resumed race reruns the rest
-        return list(field), results, launched
+        return results, launched
 
     def _race_field(self) -> tuple[list[int], dict[int, int | None]]:
         """The race's entrants (best first) and the budget each races at (None: its trial's own top).
@@ -532,10 +542,11 @@ class Driver:
         raced at 810k, predicted just under the 143 s left, took 147 s, and both its runs were lost)."""
         assert self.study is not None
         left = self._time_left()
+        ran = {n for (n, _s) in self._race_results()[1]}  # the incumbent's runs: at its entry's own budget
         candidates, budgets, costs = [], {}, {}
         for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
             entry = race_entry(t, self.spec.race_min_budget) if _original(t) else None
-            fit = self._race_fit(entry, t.user_attrs, left) if entry is not None else None
+            fit = self._race_fit(entry, t.user_attrs, left, down=t.number not in ran) if entry is not None else None
             if entry is not None and fit is not None:
                 candidates.append((t.number, entry[0], fit[1]))
                 budgets[t.number], costs[t.number] = fit[0], fit[2]
@@ -553,16 +564,19 @@ class Driver:
         return field, budgets
 
     def _race_fit(
-        self, entry: tuple[float, int | None, dict[str, Any]], trial_attrs: Mapping[str, Any], left: float
+        self, entry: tuple[float, int | None, dict[str, Any]], trial_attrs: Mapping[str, Any], left: float, down: bool
     ) -> tuple[int | None, dict[str, Any], float] | None:
         """(budget, config, predicted seconds) of the highest budget, down from the entry's own, whose one run
         (× ``RACE_MARGIN``) fits ``left``; None when no rung at ``race_min_budget`` or above does. A lower rung's
         config is what that rung of the trial (``trial_attrs``) trained (``trained_rung_config``), as
-        ``_raced_config`` rebuilds it."""
+        ``_raced_config`` rebuilds it. ``down=False``: the entry's own budget or None (an entrant whose fresh
+        seeds ran at it already: its race compares one budget)."""
         _score, budget, config = entry
         cost = self._race_cost(config)
         if cost * RACE_MARGIN <= left:
             return budget, config, cost
+        if not down:
+            return None
         try:
             top = TrainConfig.from_mapping(trial_attrs[keys.CONFIG])
         except (ConfigError, TypeError, ValueError):
@@ -697,6 +711,57 @@ class Driver:
         })  # fmt: skip
         return self._launch_next(slot)
 
+    def _launch_incumbent(self, slot: int) -> bool:
+        """Before the race, start the incumbent's next fresh seed on ``slot`` (``racing.incumbent_run``; SMAC's
+        intensification); False when none starts: ``intensify_share`` is 0, its share of the workers is busy with
+        such runs, the queue (crowd settings, retries) or the trial budget comes first, no configuration reaches
+        the study's best single net, or one run of the incumbent (× ``RACE_MARGIN``) would not fit the time left.
+
+        Each run is a race run (``race_of`` / ``race_seed``, the race's own seeds), marked ``incumbent_run``: a
+        configuration that enters the race has run those seeds already, and one found early gets many fresh
+        trainings at the study's top. Why: in the benchmark's crowd-prior studies the best single nets were race
+        runs of configurations the search had found 20–40 minutes before the race (a 30-minute study's best, 75.37,
+        the 10th tail run of a configuration found at 8 minutes)."""
+        assert self.study is not None
+        st = self.spec.study
+        share = st.intensify_share
+        if share <= 0.0 or not self.spec.ladder or self._race_window():
+            return False
+        if sum(r.incumbent for r in self._running.values()) >= max(1, int(share * self.spec.resources.workers)):
+            return False
+        if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+            return False
+        self._refresh_counts()
+        if st.n_trials is not None and self.counts.started >= st.n_trials:
+            return False
+        trials = self.study.get_trials(deepcopy=False)
+        results, launched = self._race_results()
+        best = _best_score(trials)
+        ran = {n for (n, _s) in launched}
+        entries = {}
+        for t in trials:
+            if not _original(t) or t.state not in (TrialState.COMPLETE, TrialState.PRUNED):
+                continue
+            nets = [s for s, _b in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)]
+            if t.number not in ran and best is not None and not racing.tail_reaches(nets, best):
+                continue  # no net of it reaches the best: not a candidate (and its configuration is not rebuilt)
+            entry = race_entry(t, self.spec.race_min_budget)
+            if entry is not None:
+                entries[t.number] = entry
+        candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))
+        run = racing.incumbent_run(candidates, results, launched, best)
+        if run is None:
+            return False
+        config = entries[run.race_of][2]
+        if self._race_cost(config) * RACE_MARGIN > self._time_left():
+            return False
+        source = trials[run.race_of]
+        self.study.enqueue_trial(dict(source.params), user_attrs={
+            keys.CONFIG: config, keys.SEED: racing.race_seed(st.seed, run.seed_index), keys.RACE_OF: run.race_of,
+            keys.RACE_SEED: run.seed_index, keys.INCUMBENT_RUN: True,
+        })  # fmt: skip
+        return self._launch_next(slot)
+
     def _fail_orphans(self, study: optuna.Study) -> list[int]:
         storage = self.storages.storage
         if _heartbeat_enabled(storage):
@@ -823,7 +888,7 @@ class Driver:
                     if self._race_window():
                         if self._launch_race(slot) or not self._race_over:
                             continue  # started a race run, or a round is still running: keep the slot for it
-                    if not self._launch_next(slot):
+                    if not self._launch_incumbent(slot) and not self._launch_next(slot):
                         break
             if not self._running:
                 if self._out_of_time() or not self._launch_possible():
@@ -959,7 +1024,8 @@ class Driver:
         )  # fmt: skip
         trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
         trial.set_user_attr(keys.RAY_NODE, self.pool.node_of(slot))
-        self._running[slot] = _Running(trial, trial_id, slot, task, silent=race, sampled=not given)
+        self._running[slot] = _Running(trial, trial_id, slot, task, silent=race, sampled=not given,
+                                       incumbent=bool(trial.user_attrs.get(keys.INCUMBENT_RUN)))  # fmt: skip
         self.pool.submit(slot, task)
         self._notify()
         return True
@@ -985,7 +1051,8 @@ class Driver:
         if event.kind == "done" and not self._out_of_time() and not self._race_window():
             # the worker starts its next trial before this one's storage writes (in the race window the loop
             # starts race runs instead, once this trial's result is stored: it may be an entrant)
-            self._launch_next(event.slot)
+            if not self._launch_incumbent(event.slot):
+                self._launch_next(event.slot)
         if event.kind == "lost":
             self._fail(run.trial, run.killed or event.cause, retryable=not run.killed and event.retry)
             self._enqueue_retries()

@@ -26,6 +26,13 @@ time to the search instead. A run the study's deadline stopped is no
 result (missing for every finalist, not held against the one it stopped); a run that failed, or that
 its own time limit stopped, is a result that ranks its configuration last.
 
+Before the race, the search already retrains its incumbent on the race's seeds (``incumbent_run``; SMAC's
+intensification): the best configuration whose selecting score, and every fresh run so far, reach the study's best
+single net takes the next fresh seed on a share of the workers (``[study] intensify_share``). Each such run is a
+race run like any other (same seeds, same records), so a configuration that enters the race has run part of it
+already, and a good configuration found early gets many more fresh trainings — each one more net at the study's
+top — than the race's tail alone gives it.
+
 Pure functions of plain records, so the race's state is whatever the study holds: a resumed driver
 rebuilds it from the trials' ``race_of`` / ``race_seed`` attributes.
 """
@@ -44,7 +51,7 @@ from autotune.search.seeds import derived_seed
 
 __all__ = [
     "Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "run_result", "signed_rank",
-    "standings", "tail_reaches", "tail_run", "RACE_SALT", "TAIL_REACH_MPH",
+    "standings", "tail_reaches", "tail_run", "incumbent_run", "RACE_SALT", "TAIL_REACH_MPH",
 ]  # fmt: skip
 
 RACE_SALT = 0x5EED_2ACE
@@ -223,6 +230,31 @@ def tail_reaches(scores: Iterable[float | None], best: float | None, reach: floa
     within ``reach`` mph of the study's ``best`` single net (None: the study has none)."""
     finite = [float(x) for x in scores if x is not None and math.isfinite(x)]
     return bool(finite) and (best is None or max(finite) >= best - reach)
+
+
+def incumbent_run(
+    candidates: Sequence[Entrant],
+    results: Mapping[tuple[int, int], float | None],
+    launched: Iterable[tuple[int, int]],
+    best: float | None,
+    reach: float = TAIL_REACH_MPH,
+) -> RaceRun | None:
+    """The incumbent's next fresh seed before the race (SMAC's intensification), or None.
+
+    ``candidates``: the race's possible entrants, best first (``entrants``); ``results`` and ``launched`` as
+    ``next_runs``'s; ``best``: the study's best single net. The incumbent is the first candidate whose finished
+    fresh runs reach ``best`` (``tail_reaches``: the best of them within ``reach`` mph, as the race winner's tail)
+    or, before its first, whose selecting score does: a configuration whose fresh seeds trail the study's best
+    leaves the time to the next one, or to the search. Its next seed is the first index it has not started, so its
+    runs are the seeds every entrant meets in the race."""
+    started = set(launched)
+    for e in candidates:
+        scores = [v for (n, _s), v in results.items() if n == e.number]
+        if not tail_reaches(scores or [e.value], best, reach):
+            continue
+        mine = {s for (n, s) in started if n == e.number}
+        return RaceRun(e.number, next(i for i in itertools.count() if i not in mine))
+    return None
 
 
 def run_result(

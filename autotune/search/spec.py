@@ -4,7 +4,8 @@ Five tables, every key optional unless said otherwise::
 
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
-                  balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb
+                  balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
+                  intensify_share
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -218,6 +219,9 @@ class StudySection:
     """Memory cap [GB] of one rung (its replay memory and net, ``cost.rung_memory_bytes``): a draw whose rungs up
     to [ladder] min_top need more is refused and redrawn, and no trial climbs to a rung that does (None: 60 % of
     the driver machine's memory shared among the workers)."""
+    intensify_share: float = 0.0
+    """Share of the workers that, before the seed race, retrain the incumbent on the race's fresh seeds
+    (``racing.incumbent_run``; at least one worker when above 0; 0: the race alone retrains)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -625,10 +629,14 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     memory = table.get("max_trial_memory_gb")
     if memory is not None:
         memory = _pos_float(memory, f"{src}: [study] max_trial_memory_gb")
+    intensify = _float(table.get("intensify_share", d.intensify_share), f"{src}: [study] intensify_share", 0.0, 1.0)
+    if intensify > 0.0 and race <= 0.0:
+        raise where.error("intensify_share", "retrains the incumbent on the seed race's seeds, but race_fraction = 0",
+                          "set race_fraction (e.g. 0.25), or intensify_share = 0")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
-        tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory,
+        tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
     )  # fmt: skip
 
 

@@ -713,8 +713,8 @@ class Driver:
 
     def _launch_incumbent(self, slot: int) -> bool:
         """Before the race, start the incumbent's next fresh seed on ``slot`` (``racing.incumbent_run``; SMAC's
-        intensification); False when none starts: ``intensify_share`` is 0, its share of the workers is busy with
-        such runs, the queue (crowd settings, retries) or the trial budget comes first, no configuration reaches
+        intensification); False when none starts: ``intensify_share`` is 0, its share of the workers (at least one,
+        never all) is busy with such runs, the queue (crowd settings, retries) or the trial budget comes first, no configuration reaches
         the study's best single net, or one run of the incumbent (× ``RACE_MARGIN``) would not fit the time left.
 
         Each run is a race run (``race_of`` / ``race_seed``, the race's own seeds), marked ``incumbent_run``: a
@@ -727,8 +727,9 @@ class Driver:
         share = st.intensify_share
         if share <= 0.0 or not self.spec.ladder or self._race_window():
             return False
-        if sum(r.incumbent for r in self._running.values()) >= max(1, int(share * self.spec.resources.workers)):
-            return False
+        workers = self.spec.resources.workers
+        if sum(r.incumbent for r in self._running.values()) >= min(max(1, int(share * workers)), workers - 1):
+            return False  # at least one worker, never all: the search always goes on
         if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
             return False
         self._refresh_counts()
@@ -1048,9 +1049,10 @@ class Driver:
             wall = self._gated_seconds(event.outcome)
             if wall is not None:
                 self._cheapest_gated_s = wall if self._cheapest_gated_s == 0.0 else min(self._cheapest_gated_s, wall)
-        if event.kind == "done" and not self._out_of_time() and not self._race_window():
+        if event.kind == "done" and not self._out_of_time() and not self._race_window() and not run.incumbent:
             # the worker starts its next trial before this one's storage writes (in the race window the loop
-            # starts race runs instead, once this trial's result is stored: it may be an entrant)
+            # starts race runs instead, once this trial's result is stored: it may be an entrant; after an
+            # incumbent's run too: its score decides whether the incumbent goes on)
             if not self._launch_incumbent(event.slot):
                 self._launch_next(event.slot)
         if event.kind == "lost":

@@ -221,7 +221,7 @@ class StudySection:
     the driver machine's memory shared among the workers)."""
     intensify_share: float = 0.0
     """Share of the workers that, before the seed race, retrain the incumbent on the race's fresh seeds
-    (``racing.incumbent_run``; at least one worker when above 0; 0: the race alone retrains)."""
+    (``racing.incumbent_run``; at least one worker when above 0, never all of them; 0: the race alone retrains)."""
 
     @property
     def cost_cap_s(self) -> float:

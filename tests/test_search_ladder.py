@@ -359,6 +359,34 @@ def test_refused_draws_never_become_trials() -> None:
     assert len(study.trials) == 12 and refused > 0  # refusals used no trial (budget, startup phase)
 
 
+def test_the_gated_sampler_models_draws_not_race_runs() -> None:
+    """Race runs retrain configurations already in the history: the wrapped sampler never sees them (the
+    incumbent's many fresh runs before the race would fill TPE's good tenth with one configuration)."""
+    spec = _spec()
+    seen: list[list[int]] = []
+
+    class Recording(optuna.samplers.RandomSampler):
+        def infer_relative_search_space(self, study: Any, trial: Any) -> dict[str, Any]:
+            seen.append([t.number for t in study.get_trials(deepcopy=False)])
+            return super().infer_relative_search_space(study, trial)
+
+        def sample_independent(self, study: Any, trial: Any, name: str, dist: Any) -> Any:
+            seen.append([t.number for t in study.get_trials(deepcopy=False)])
+            return super().sample_independent(study, trial, name, dist)
+
+    sampler = CostGatedSampler(Recording(seed=0), spec, lambda _p: 1.0, 5.0, seed=0)
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    dists = distributions(spec)
+    params = space.encode(spec, TINY)
+    for attrs in ({}, {keys.RACE_OF: 0, keys.RACE_SEED: 0}, {keys.RACE_OF: 0, keys.RACE_SEED: 1}):
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=74.0, user_attrs=attrs))
+    trial = study.ask()
+    space.sample(trial, spec)  # the gate's relative draw asks its base for its search space
+    frozen = study._storage.get_trial(trial._trial_id)  # noqa: SLF001
+    sampler.sample_independent(study, frozen, "lanes_side", dists["lanes_side"])
+    assert len(seen) == 2 and all(numbers == [0, 3] for numbers in seen)  # no race run; the draw itself runs
+
+
 def test_the_gate_prices_a_draws_whole_ladder(tmp_path: Path) -> None:
     """A sampled draw is priced at every rung it would climb: one whose first rung fits the cap but whose ladder
     does not is refused (its value would be a short rung's score, not comparable with the others')."""

@@ -12,7 +12,9 @@ cannot pay for without its model being told anything false.
 The wrapper samples the WHOLE fixed-shape space relatively (``space.dimensions``): during the base
 sampler's startup phase (it returns nothing) the wrapper fills the gaps with its own seeded random
 draws, so every parameter of a draw is known before it is priced. Enqueued trials (crowd prior,
-retries, seed races) carry fixed params and are not gated here; the driver prices them itself.
+retries, seed races) carry fixed params and are not gated here; the driver prices them itself. The history the
+wrapped sampler sees leaves out the seed race's runs (``history.DrawsView``): re-measurements of a configuration
+already in it.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from optuna.study import Study
 from optuna.trial import FrozenTrial, TrialState
 
 from autotune.search import space
+from autotune.search.history import DrawsView
 from autotune.search.spec import Dimension, StudySpec
 
 __all__ = ["CostGatedSampler", "distributions", "MAX_DRAWS"]
@@ -91,11 +94,12 @@ class CostGatedSampler(BaseSampler):
     ) -> dict[str, Any]:
         if not search_space:
             return {}
-        base_space = self._base.infer_relative_search_space(study, trial)
+        draws: Any = DrawsView(study)  # stands in for the study
+        base_space = self._base.infer_relative_search_space(draws, trial)
         cap = self._cap() if callable(self._cap) else self._cap
         cheapest: tuple[float, dict[str, Any]] | None = None
         for refused in range(MAX_DRAWS):
-            params = dict(self._base.sample_relative(study, trial, base_space)) if base_space else {}
+            params = dict(self._base.sample_relative(draws, trial, base_space)) if base_space else {}
             for name, dist in search_space.items():
                 if name not in params:
                     params[name] = self._random.sample_independent(study, trial, name, dist)
@@ -111,7 +115,8 @@ class CostGatedSampler(BaseSampler):
     def sample_independent(
         self, study: Study, trial: FrozenTrial, param_name: str, param_distribution: BaseDistribution
     ) -> Any:
-        return self._base.sample_independent(study, trial, param_name, param_distribution)
+        draws: Any = DrawsView(study)
+        return self._base.sample_independent(draws, trial, param_name, param_distribution)
 
     def before_trial(self, study: Study, trial: FrozenTrial) -> None:
         self._base.before_trial(study, trial)

@@ -14,7 +14,9 @@ from typing import Any
 from optuna.study import Study
 from optuna.trial import FrozenTrial, TrialState
 
-__all__ = ["HistoryView"]
+from autotune.search.keys import RACE_OF
+
+__all__ = ["DrawsView", "HistoryView"]
 
 
 class HistoryView:
@@ -43,3 +45,12 @@ class HistoryView:
 
     def __getattr__(self, attr: str) -> Any:  # directions, storage, ids: the real study's
         return getattr(self._study, attr)
+
+
+class DrawsView(HistoryView):
+    """The history without its seed-race runs (``race_of``): each retrains a configuration the history holds
+    already, under the trial that selected it. Shown as trials of their own, the incumbent's many fresh runs
+    before the race (``[study] intensify_share``) would fill TPE's good tenth with copies of one configuration."""
+
+    def shown(self, trials: list[FrozenTrial]) -> list[FrozenTrial]:
+        return [t for t in trials if RACE_OF not in t.user_attrs]

@@ -720,9 +720,9 @@ class Driver:
 
         Each run is a race run (``race_of`` / ``race_seed``, the race's own seeds), marked ``incumbent_run``: a
         configuration that enters the race has run those seeds already, and one found early gets many fresh
-        trainings at the study's top. Why: in the benchmark's crowd-prior studies the best single nets were race
-        runs of configurations the search had found 20–40 minutes before the race (a 30-minute study's best, 75.37,
-        the 10th tail run of a configuration found at 8 minutes)."""
+        trainings at the study's top (a 30-minute crowd-prior study's best, 75.37, was the 10th tail run of a
+        configuration found at 8 minutes). Off in ``paper.toml``: measured on one crowd-prior hour it led at 10 and
+        30 minutes and tied at 60, one configuration holding its worker from minute 7 to the race (README)."""
         assert self.study is not None
         st = self.spec.study
         share = st.intensify_share

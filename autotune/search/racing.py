@@ -26,9 +26,9 @@ time to the search instead. A run the study's deadline stopped is no
 result (missing for every finalist, not held against the one it stopped); a run that failed, or that
 its own time limit stopped, is a result that ranks its configuration last.
 
-Before the race, the search already retrains its incumbent on the race's seeds (``incumbent_run``; SMAC's
-intensification): the best configuration whose selecting score, and every fresh run so far, reach the study's best
-single net takes the next fresh seed on a share of the workers (``[study] intensify_share``). Each such run is a
+With ``[study] intensify_share``, the search retrains its incumbent on the race's seeds before the race
+(``incumbent_run``; SMAC's intensification): the best candidate whose fresh runs — before its first, its selecting
+score — reach the study's best single net takes the next fresh seed on a share of the workers. Each such run is a
 race run like any other (same seeds, same records), so a configuration that enters the race has run part of it
 already, and a good configuration found early gets many more fresh trainings — each one more net at the study's
 top — than the race's tail alone gives it.

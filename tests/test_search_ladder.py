@@ -711,16 +711,19 @@ def test_the_race_winner_gets_more_seeds_only_once_the_halving_is_over() -> None
     assert not racing.tail_reaches([None], 70.0) and racing.tail_reaches([70.0], None)
 
 
+def _driver_on_journal(spec: StudySpec) -> tuple[Driver, Any, Any, dict[str, Any], dict[str, Any]]:
+    """(driver, its opened study, the storages, the space's distributions, TINY's params) on ``spec``'s storage."""
+    storages = open_storage(spec.study.storage, spec.study.name)
+    driver = Driver(spec, storages)
+    return driver, driver.open_study(), storages, distributions(spec), space.encode(spec, TINY)
+
+
 def test_the_race_winner_takes_the_time_left_while_its_runs_reach_the_best_net(tmp_path: Path) -> None:
     """The driver's ``_race_runs``: after the halving, the winner's next seed while its best run reaches the study's
     best single net (kept rungs count), one run of it fits the time left and the trial budget is not spent."""
     spec = _spec(race_configs=2, race_seeds=1, n_trials=5, timeout_s=3600).with_overrides(
         storage=str(tmp_path / "j.log"))  # fmt: skip
-    storages = open_storage(spec.study.storage, spec.study.name)
-    driver = Driver(spec, storages)
-    study = driver.open_study()
-    dists = distributions(spec)
-    params = space.encode(spec, TINY)
+    driver, study, storages, dists, params = _driver_on_journal(spec)
     done = optuna.trial.TrialState.COMPLETE
 
     def add(value: float, **attrs: Any) -> None:
@@ -792,11 +795,7 @@ def test_the_search_retrains_its_incumbent_on_the_race_seeds_before_the_race(tmp
     queue, never in the race window, never with ``intensify_share`` 0; the race then runs only the seeds it lacks."""
     spec = _spec(race_configs=2, race_seeds=2, n_trials=20, timeout_s=3600, intensify_share=0.5).with_overrides(
         storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
-    storages = open_storage(spec.study.storage, spec.study.name)
-    driver = Driver(spec, storages)
-    study = driver.open_study()
-    dists = distributions(spec)
-    params = space.encode(spec, TINY)
+    driver, study, storages, dists, params = _driver_on_journal(spec)
     done = optuna.trial.TrialState.COMPLETE
     chosen = TINY.replace(epsilon_test_time=0.05).to_mapping()
 

@@ -837,6 +837,9 @@ def test_the_search_retrains_its_incumbent_on_the_race_seeds_before_the_race(tmp
     alone.open_study()
     alone._t0, alone.pool = time.perf_counter(), FakePool()  # noqa: SLF001
     assert not alone._launch_incumbent(0)  # noqa: SLF001 - never the last worker: the search goes on
+    driver._race_over = True  # noqa: SLF001 - the race has run: no incumbent runs after it
+    assert not driver._launch_incumbent(0)  # noqa: SLF001
+    driver._race_over = False  # noqa: SLF001
     driver._t0 = time.perf_counter() - 0.8 * 3600  # noqa: SLF001 - the race window: the race takes over
     assert not driver._launch_incumbent(0)  # noqa: SLF001
     field, results, launched = driver._race_state()  # noqa: SLF001

@@ -726,8 +726,8 @@ class Driver:
         assert self.study is not None
         st = self.spec.study
         share = st.intensify_share
-        if share <= 0.0 or not self.spec.ladder or self._race_window():
-            return False
+        if share <= 0.0 or not self.spec.ladder or self._race_over or self._race_window():
+            return False  # before the race only: once it is over the time left is the search's
         workers = self.spec.resources.workers
         if sum(r.incumbent for r in self._running.values()) >= min(max(1, int(share * workers)), workers - 1):
             return False  # at least one worker, never all: the search always goes on

@@ -778,6 +778,27 @@ def test_the_incumbent_is_the_best_candidate_whose_runs_reach_the_best_net() -> 
     assert racing.incumbent_run([c], {}, set(), 75.11) is None
 
 
+def test_the_incumbent_runs_at_most_max_runs_before_the_race() -> None:
+    """``max_runs`` bounds one configuration's fresh runs before the race (a running one counts): then the next
+    candidate that reaches the best, else none; None leaves the incumbent unbounded."""
+    a, b = racing.Entrant(25, 75.11, "a"), racing.Entrant(79, 74.9, "b")
+    results = {(25, 0): 75.7, (25, 1): 75.2}  # its own runs set the best: unbounded, it would go on
+    assert racing.incumbent_run([a, b], results, set(results), 75.7) == racing.RaceRun(25, 2)
+    assert racing.incumbent_run([a, b], results, set(results), 75.7, max_runs=3) == racing.RaceRun(25, 2)
+    assert racing.incumbent_run([a, b], results, {*results, (25, 2)}, 75.7, max_runs=3) is None  # 74.9 trails 75.7
+    assert racing.incumbent_run([a, b], results, set(results), 75.3, max_runs=2) == racing.RaceRun(79, 0)
+    assert racing.incumbent_run([a, b], {}, set(), 75.11, max_runs=1) == racing.RaceRun(25, 0)
+
+
+def test_intensify_runs_bounds_the_incumbent_and_needs_intensify_share() -> None:
+    assert _spec().study.intensify_runs is None
+    assert _spec(intensify_share=0.5, intensify_runs=8).study.intensify_runs == 8
+    with pytest.raises(SpecError, match=r"\[study\] intensify_runs: .*intensify_share = 0; set intensify_share"):
+        _spec(intensify_runs=8)
+    with pytest.raises(SpecError, match=r"\[study\] intensify_runs"):
+        _spec(intensify_share=0.5, intensify_runs=0)
+
+
 def test_intensify_share_is_a_share_of_the_workers_and_needs_a_race() -> None:
     assert _spec().study.intensify_share == 0.0
     assert _spec(intensify_share=0.5).study.intensify_share == 0.5
@@ -829,6 +850,10 @@ def test_the_search_retrains_its_incumbent_on_the_race_seeds_before_the_race(tmp
     add(74.5, TINY.replace(batch_size=16).to_mapping())  # a new best: trial 0's seeds (73.7, 72.0) trail it
     assert driver._launch_incumbent(0) and study.trials[-1].user_attrs[keys.RACE_OF] == 5  # noqa: SLF001
     finish(0, 74.4)
+    bounded = Driver(dataclasses.replace(spec, study=dataclasses.replace(spec.study, intensify_runs=1)), storages)
+    bounded.open_study()
+    bounded._t0, bounded.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert not bounded._launch_incumbent(0)  # noqa: SLF001 - trial 5 (74.4) had its one run; trial 0's trail
     idle = Driver(dataclasses.replace(spec, study=dataclasses.replace(spec.study, intensify_share=0.0)), storages)
     idle.open_study()
     idle._t0, idle.pool = time.perf_counter(), FakePool()  # noqa: SLF001

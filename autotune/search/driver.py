@@ -751,7 +751,7 @@ class Driver:
             if entry is not None:
                 entries[t.number] = entry
         candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))
-        run = racing.incumbent_run(candidates, results, launched, best)
+        run = racing.incumbent_run(candidates, results, launched, best, max_runs=st.intensify_runs)
         if run is None:
             return False
         config = entries[run.race_of][2]

@@ -238,6 +238,7 @@ def incumbent_run(
     launched: Iterable[tuple[int, int]],
     best: float | None,
     reach: float = TAIL_REACH_MPH,
+    max_runs: int | None = None,
 ) -> RaceRun | None:
     """The incumbent's next fresh seed before the race (SMAC's intensification), or None.
 
@@ -245,14 +246,18 @@ def incumbent_run(
     ``next_runs``'s; ``best``: the study's best single net. The incumbent is the first candidate whose finished
     fresh runs reach ``best`` (``tail_reaches``: the best of them within ``reach`` mph, as the race winner's tail)
     or, before its first, whose selecting score does: a configuration whose fresh seeds trail the study's best
-    leaves the time to the next one, or to the search. Its next seed is the first index it has not started, so its
-    runs are the seeds every entrant meets in the race."""
+    leaves the time to the next one, or to the search. ``max_runs`` bounds a configuration's fresh runs before the
+    race (None: unbounded): after n runs of one configuration the next beats their best with a chance of about
+    1/(n+1), so its worker goes back to the next candidate or the search. Its next seed is the first index it has
+    not started, so its runs are the seeds every entrant meets in the race."""
     started = set(launched)
     for e in candidates:
+        mine = {s for (n, s) in started if n == e.number}
+        if max_runs is not None and len(mine) >= max_runs:
+            continue
         scores = [v for (n, _s), v in results.items() if n == e.number]
         if not tail_reaches(scores or [e.value], best, reach):
             continue
-        mine = {s for (n, s) in started if n == e.number}
         return RaceRun(e.number, next(i for i in itertools.count() if i not in mine))
     return None
 

@@ -5,7 +5,7 @@ Five tables, every key optional unless said otherwise::
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
-                  intensify_share
+                  intensify_share, intensify_runs
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -222,6 +222,9 @@ class StudySection:
     intensify_share: float = 0.0
     """Share of the workers that, before the seed race, retrain the incumbent on the race's fresh seeds
     (``racing.incumbent_run``; at least one worker when above 0, never all of them; 0: the race alone retrains)."""
+    intensify_runs: int | None = None
+    """With intensify_share: the most fresh runs one configuration gets before the race (None: while its runs reach
+    the study's best net); the next run of a configuration run n times beats their best with chance ≈ 1/(n+1)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -633,10 +636,17 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if intensify > 0.0 and race <= 0.0:
         raise where.error("intensify_share", "retrains the incumbent on the seed race's seeds, but race_fraction = 0",
                           "set race_fraction (e.g. 0.25), or intensify_share = 0")  # fmt: skip
+    intensify_runs = table.get("intensify_runs")
+    if intensify_runs is not None:
+        intensify_runs = _pos_int(intensify_runs, f"{src}: [study] intensify_runs")
+        if intensify <= 0.0:
+            raise where.error("intensify_runs", "bounds the incumbent's runs before the race, but intensify_share = 0",
+                              "set intensify_share (e.g. 0.25), or remove intensify_runs")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
+        intensify_runs,
     )  # fmt: skip
 
 

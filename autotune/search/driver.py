@@ -715,8 +715,8 @@ class Driver:
         """Before the race, start the incumbent's next fresh seed on ``slot`` (``racing.incumbent_run``; SMAC's
         intensification); False when none starts: ``intensify_share`` is 0, its share of the workers (at least one,
         never all) is busy with such runs, the queue (crowd settings, retries) or the trial budget comes first, no
-        configuration reaches the study's best single net, or one run of the incumbent (× ``RACE_MARGIN``) would not
-        fit the time left.
+        configuration reaches the study's best single net (or every one that does has had ``intensify_runs``
+        runs), or one run of the incumbent (× ``RACE_MARGIN``) would not fit the time left.
 
         Each run is a race run (``race_of`` / ``race_seed``, the race's own seeds), marked ``incumbent_run``: a
         configuration that enters the race has run those seeds already, and one found early gets many fresh

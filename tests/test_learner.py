@@ -12,7 +12,7 @@ import torch
 from autotune.convnet import spec
 from autotune.convnet.deepqlearn import BLOCK, BlockUniform, js_argmax_rows, js_epsilon
 from autotune.learner.brain import DeepQLearner
-from autotune.learner.config import TrainConfig
+from autotune.learner.config import ConfigError, TrainConfig
 from autotune.learner.quick_eval import GreedyPolicy
 from autotune.learner.training import (
     StopTraining,
@@ -537,3 +537,30 @@ def test_v2_agents_greedy_snapshot_when_burnin_is_tiny():
     with torch.no_grad():
         brain.module.fc_layers[0].weight.add_(1.0)  # later training does not change the frozen copy
     assert np.array_equal(agents.frozen[0](np.concatenate([x, agents._hist[1]]).astype(np.float32)), frozen_q)
+
+
+def test_training_on_from_loaded_weights():
+    """``init_net``: the site's train-on from ``value_net.fromJSON`` weights — loaded, then trained from them."""
+    config = _small_training_config(train_iterations=200)
+    parent = train(config, seed=3, quick_eval=False).convnet()
+    # no update (start_learn_threshold above what 200 decisions store): the net comes back as loaded, bit for bit
+    no_update = config.replace(experience_size=1000, start_learn_threshold=999)
+    frozen = train(no_update, seed=4, quick_eval=False, init_net=parent)
+    assert frozen.updates == 0 and frozen.convnet().same_as(parent) and frozen.weight_change == 0.0
+    fresh = train(no_update, seed=4, quick_eval=False)
+    assert not fresh.convnet().same_as(parent)  # without it, the seed's own initial weights
+    # trained on: moved from the loaded weights, deterministic per (net, seed), and every draw as without init_net
+    a = train(config, seed=4, quick_eval=False, init_net=parent)
+    b = train(config, seed=4, quick_eval=False, init_net=parent)
+    c = train(config, seed=4, quick_eval=False)
+    assert a.updates == c.updates > 0 and 0.0 < a.weight_change and a.convnet().same_as(b.convnet())
+    assert not a.convnet().same_as(parent) and not a.convnet().same_as(c.convnet())
+
+
+def test_loaded_weights_must_be_the_configs_net():
+    parent = train(_small_training_config(train_iterations=0), seed=0, quick_eval=False).convnet()
+    with pytest.raises(ConfigError, match=r"init_net: its layers \(12 inputs, hidden 'fc:4:relu'\) are not the "
+                                          r"config's \(12 inputs, hidden 'fc:5:relu'\)"):  # fmt: skip
+        train(_small_training_config(layers="fc:5:relu"), seed=0, quick_eval=False, init_net=parent)
+    with pytest.raises(ConfigError, match="init_net: .*load a net trained with the same inputs and layers"):
+        train(_small_training_config(patches_ahead=5), seed=0, quick_eval=False, init_net=parent)

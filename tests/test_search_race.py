@@ -184,3 +184,38 @@ def test_race_runs_use_no_budget_and_are_not_called_retries() -> None:
     assert raced.finished == 4
     assert raced.reruns == "1 retries, 6 race runs"
     assert StudyCounts(budget=5, complete=3).reruns == "0 retries"
+
+
+@pytest.mark.slow
+def test_refinement_runs_train_on_from_the_best_net_and_retrain_exactly(tmp_path: Path) -> None:
+    """With ``refine_share``, half of the 2 workers train on from the study's best single net through Ray: each
+    run's parent is a stored net with the score it names, its seeds are the study's refinement seeds in order, it
+    uses no budget, and ``autotune evaluate --retrain`` (``retrain_trial``) gives its score again from its parent's
+    stored net, exactly."""
+    from autotune.search.records import retrain_trial, scored_nets
+    from autotune.search.refine import refine_seed
+    from autotune.search.storage import open_storage
+
+    spec = tmp_path / "race.toml"
+    text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 75")
+    spec.write_text(text.replace("race_seeds = 1\n", "race_seeds = 1\nrefine_share = 0.5\nrefine_iterations = 1000\n"))
+    code, out, err = finish(launch(tmp_path, str(spec), tag="refi-" + tmp_path.name), timeout=400)
+    assert code == 0, err
+    study = load(tmp_path, "race")
+    trials = study.get_trials(deepcopy=False)
+    refined = [t for t in trials if "refine_of" in t.user_attrs]
+    assert refined, "no refinement run"
+    assert [t.user_attrs["seed"] for t in refined] == [refine_seed(0, k) for k in range(len(refined))]
+    for t in refined:
+        parent = t.user_attrs["refine_of"]
+        source = trials[parent["trial"]]
+        nets = dict((b, s) for s, b in scored_nets(source.user_attrs, source.value, source.state.name == "COMPLETE"))
+        assert nets[parent["budget"]] == parent["score"], t.number
+        assert t.user_attrs["config"]["train_iterations"] == 1000 and not t.intermediate_values
+    done = [t for t in refined if t.state == optuna.trial.TrialState.COMPLETE]
+    assert done, "no refinement run finished"
+    storages = open_storage(str(tmp_path / "runs" / "race" / "journal.log"), "race", heartbeat=False,
+                            artifacts=tmp_path / "runs" / "race" / "artifacts")  # fmt: skip
+    rep = retrain_trial(storages, "race", done[-1].number)
+    assert rep.identical and rep.stored == done[-1].value
+    assert tagged_processes("refi-" + tmp_path.name) == []

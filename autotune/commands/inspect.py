@@ -93,6 +93,12 @@ def _status(args: argparse.Namespace) -> int:
     return 0
 
 
+def _net_name(step: dict[str, Any]) -> str:
+    """``trial 12's 90,000-iteration rung (74.95)`` or ``trial 41 (75.10)``: one net of a refinement lineage."""
+    where = f"trial {step['trial']}" + (f"'s {step['budget']:,}-iteration rung" if step["budget"] is not None else "")
+    return f"{where} ({step['score']:.2f})" if isinstance(step.get("score"), (int, float)) else where
+
+
 def _best(args: argparse.Namespace) -> int:
     from autotune.search.records import best_net, best_trial_record, export_best_net, race_summary, read_study
 
@@ -106,7 +112,7 @@ def _best(args: argparse.Namespace) -> int:
     if args.json:
         record["exported"] = {name: str(path) for name, path in paths.items()}
         record["race"] = race
-        if net is not None and net["budget"] is not None:  # a kept rung outscored every trial's value
+        if net is not None and (net["budget"] is not None or net["lineage"]):  # a kept rung, or a refined net
             record["best_net"] = net
         print(json.dumps(record))
         return 0
@@ -124,6 +130,9 @@ def _best(args: argparse.Namespace) -> int:
         print("  (the leaderboard's number, one seed's draw; --export writes this net)")
     else:
         print("  (the best single net: the leaderboard's number, one seed's draw)")
+    if net is not None and net["lineage"]:
+        steps = " ← ".join(_net_name(step) for step in net["lineage"])
+        print(f"  refined: trial {net['trial']} trained on from {steps} (the fresh training it started from last)")
     if race is not None and race["winner"] is not None:
         w = race["winner"]
         sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""

@@ -387,7 +387,7 @@ class ConvNet:
 
     def same_as(self, other: ConvNet) -> bool:
         """Same layers (an fc's ``bias_pref`` — initialisation only — ignored) and bit-identical parameters."""
-        if _structure(self.layers) != _structure(other.layers) or len(self.params) != len(other.params):
+        if not same_structure(self.layers, other.layers) or len(self.params) != len(other.params):
             return False
         for (w1, b1), (w2, b2) in zip(self.params, other.params, strict=True):
             if w1.shape != w2.shape or b1.shape != b2.shape:
@@ -402,6 +402,22 @@ class ConvNet:
 
 def _structure(layers: Sequence[Layer]) -> tuple[Layer, ...]:
     return tuple(dataclasses.replace(x, bias_pref=None) if isinstance(x, FC) else x for x in layers)
+
+
+def same_structure(a: Sequence[Layer], b: Sequence[Layer]) -> bool:
+    """Whether two expanded layer lists build the same net: an fc's ``bias_pref`` (initialisation only, never in a
+    net's JSON) is ignored."""
+    return _structure(a) == _structure(b)
+
+
+def describe_layers(layers: Sequence[Layer]) -> str:
+    """``layers`` (expanded, from the input) in a line: the input size and the crowd's hidden-layer string."""
+    sizes = layer_sizes(layers)
+    defs = collapse(layers)
+    if defs and isinstance(defs[-1], Regression):
+        defs = defs[:-1]
+    hidden = format_hidden(defs[1:])
+    return f"{sizes[0][1]} inputs, hidden '{hidden}'" if hidden else f"{sizes[0][1]} inputs, no hidden layer"
 
 
 def fc_bias_prefs(layers: Sequence[Layer]) -> list[float]:

@@ -30,6 +30,10 @@ not the code:
 * **Initialisation**: fc weights ~ N(0, √(1/fan_in)), biases ``bias_pref`` (0.1 for relu fc layers,
   else 0) — from the run's own torch generator (original stream: convnetjs's polar-method
   Gaussians from ``Math.random``).
+* **Loaded weights** (``init_net``): the net a DeepTraffic page built and then filled with
+  ``brain.value_net.fromJSON(...)`` before training on — the site's way to train a net further. The
+  initial draws are made as usual (the run's other draws stay where they were) and replaced by the
+  loaded weights and biases; the replay memory and the counters start empty, as in a new ``Brain``.
 * Divergence: convnetjs lets Q-values run to NaN. Here training stops at the first non-finite
   greedy Q-value or sampled loss: ``learn`` raises ``DivergedError``; ``train`` records it
   (``TrainResult.diverged``, ``diverged_reason``) and returns the net as it was.
@@ -43,10 +47,11 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from autotune.convnet import spec
 from autotune.convnet.deepqlearn import GREEDY, BlockUniform, explore_action, js_epsilon, shift_window, warmup_action
 from autotune.learner.config import NUM_ACTIONS, TrainConfig
 from autotune.learner.js_learner import OriginalStream
-from autotune.learner.kernel import NP_DTYPES, TORCH_DTYPES, Kernel, build_network, numpy_forward_ops
+from autotune.learner.kernel import NP_DTYPES, TORCH_DTYPES, Kernel, build_network, load_weights, numpy_forward_ops
 
 __all__ = ["DeepQLearner", "DivergedError"]
 
@@ -69,7 +74,11 @@ class DeepQLearner:
     """
 
     def __init__(
-        self, config: TrainConfig, seed: int | np.random.SeedSequence = 0, stream: OriginalStream | None = None
+        self,
+        config: TrainConfig,
+        seed: int | np.random.SeedSequence = 0,
+        stream: OriginalStream | None = None,
+        init_net: spec.ConvNet | None = None,
     ) -> None:
         ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
         s_rng, s_torch = ss.spawn(2)
@@ -84,6 +93,8 @@ class DeepQLearner:
             with torch.no_grad():
                 for lin, w in zip(self.module.fc_layers, stream.init_weights(shapes), strict=True):
                     lin.weight.data.copy_(torch.from_numpy(w))
+        if init_net is not None:
+            load_weights(self.module, self.layers, init_net)
         self.kernel = Kernel(config, self.module, self.layers, self.torch_gen)
         self._np_ops = numpy_forward_ops(self.module, self.layers, NP_DTYPES[config.dtype])
         np_dtype = NP_DTYPES[config.dtype]

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from autotune.convnet import spec, torch_bridge
-from autotune.learner.config import NUM_ACTIONS, TrainConfig
+from autotune.learner.config import NUM_ACTIONS, ConfigError, TrainConfig
 
 __all__ = ["Kernel", "build_network", "numpy_forward_ops", "NP_DTYPES", "TORCH_DTYPES"]
 
@@ -496,3 +496,20 @@ def numpy_forward_ops(module: Any, layers: tuple, np_dtype: Any) -> list[Callabl
             ops.append(lrn)
         # Input, SVM, Regression: identity
     return ops
+
+
+def load_weights(module: Any, layers: tuple[spec.Layer, ...], net: spec.ConvNet) -> None:
+    """Copy ``net``'s weights and biases into ``module`` (built for ``layers``) in place, as convnetjs's
+    ``Net.fromJSON`` fills a page's net: the flat parameter views stay the optimizer's.
+
+    Raises ``ConfigError`` (field ``init_net``) when ``net``'s layers are not ``layers``: a loaded net must be the
+    net the config builds (the same inputs, layers, sizes and activations)."""
+    if not spec.same_structure(net.layers, layers):
+        raise ConfigError(
+            f"init_net: its layers ({spec.describe_layers(net.layers)}) are not the config's "
+            f"({spec.describe_layers(layers)}); load a net trained with the same inputs and layers"
+        )
+    with torch.no_grad():
+        for lin, (w, b) in zip(module.fc_layers, net.params, strict=True):
+            lin.weight.copy_(torch.from_numpy(w).to(lin.weight.dtype))
+            lin.bias.copy_(torch.from_numpy(b).to(lin.bias.dtype))

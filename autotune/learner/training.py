@@ -232,6 +232,7 @@ def train(
     progress: Callable[[int, int], None] | None = None,
     torch_threads: int | None = None,
     stream: str = "independent",
+    init_net: spec.ConvNet | None = None,
 ) -> TrainResult:
     """Train ``config`` with the DeepTraffic training protocol from ``seed``.
 
@@ -252,6 +253,11 @@ def train(
     ``StopTraining``; other exceptions propagate. A diverging net (non-finite Q or loss) ends
     training with ``result.diverged`` set. ``progress(frames_done, total_frames)`` is called about
     every 1 % of the decisions and at least every 1,000 (progress bars, wall-time limits).
+
+    ``init_net``: train on from this net's weights (a page that loaded them with ``value_net.fromJSON`` before
+    training; ``DeepQLearner``) instead of fresh ones; its layers must be the config's (``ConfigError``
+    otherwise). Every draw of the run is the one it makes without ``init_net``; ``weight_change`` is measured
+    from the loaded weights.
 
     Process settings: after ``autotune.configure_process`` (the CLI, a worker) ``train`` leaves
     torch's threads and denormal flushing as the process set them. ``torch_threads`` (or a process
@@ -282,18 +288,20 @@ def train(
         torch.set_flush_denormal(True)  # tiny activations must not hit the slow denormal path (reset to off after)
     try:
         with torch.no_grad():
-            return _train(config, seeds, reporting)
+            return _train(config, seeds, reporting, init_net)
     finally:
         if torch_threads is not None:
             torch.set_num_threads(old_threads)
             torch.set_flush_denormal(False)
 
 
-def _train(config: TrainConfig, seeds: _Seeds, reporting: _Reporting) -> TrainResult:
+def _train(
+    config: TrainConfig, seeds: _Seeds, reporting: _Reporting, init_net: spec.ConvNet | None = None
+) -> TrainResult:
     t0 = time.perf_counter()
     c0 = time.process_time()
     seed, original, progress = seeds.seed, seeds.original, reporting.progress
-    brain = DeepQLearner(config, seeds.brain, stream=original)
+    brain = DeepQLearner(config, seeds.brain, stream=original, init_net=init_net)
     initial = _flat_params(brain.module)
     eval_rng = np.random.default_rng(seeds.eval)
     runs, frames_per_run = config.schedule

@@ -32,6 +32,8 @@ another study's measured trials copied into the sampler's history. Seed race: th
 (``autotune.search.racing``), then its winner while that winner's runs reach the study's best net, each run an
 ordinary trial with ``race_of`` / ``race_seed``. Before the race, ``intensify_share`` of the workers retrain
 the incumbent on the race's seeds while its runs reach the study's best net (``_launch_incumbent``).
+Refinement: ``refine_share`` of the workers (outside the race's rounds) train on from the study's best single
+net (``autotune.search.refine``), each run an ordinary trial with ``refine_of``.
 
 Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
 (``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express
@@ -60,7 +62,7 @@ from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
-from autotune.search import keys, racing, space
+from autotune.search import keys, racing, refine, space
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
 from autotune.search.denoise import DenoisedSampler
@@ -75,7 +77,7 @@ from autotune.search.objective import (
     process_alive,
     process_start,
 )
-from autotune.search.records import net_rank, scored_nets
+from autotune.search.records import RecordError, net_rank, net_text, scored_nets
 from autotune.search.seeds import derived_seed
 from autotune.search.spec import SpecError, StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
@@ -118,6 +120,8 @@ class StudyCounts:
     """Retries (``retry_of``, any state): trials that use no budget."""
     race_runs: int = 0
     """Seed-race runs (``race_of``, any state): trials that use no budget either."""
+    refine_runs: int = 0
+    """Refinement runs (``refine_of``, any state; ``[study] refine_share``): no budget either."""
     best_value: float | None = None
     best_number: int | None = None
     elapsed_s: float = 0.0
@@ -125,12 +129,14 @@ class StudyCounts:
     @property
     def finished(self) -> int:
         """Original trials whose chain has ended: budget units used up."""
-        return self.complete + self.pruned + self.failed - self.retries - self.race_runs
+        return self.complete + self.pruned + self.failed - self.retries - self.race_runs - self.refine_runs
 
     @property
     def reruns(self) -> str:
-        """'N retries' and, when the study raced, ', M race runs' (neither uses budget): summary lines."""
-        return f"{self.retries} retries" + (f", {self.race_runs} race runs" if self.race_runs else "")
+        """'N retries' and, when the study raced or refined, ', M race runs', ', K refinement runs' (none uses
+        budget): summary lines."""
+        return (f"{self.retries} retries" + (f", {self.race_runs} race runs" if self.race_runs else "")
+                + (f", {self.refine_runs} refinement runs" if self.refine_runs else ""))  # fmt: skip
 
 
 Progress = Callable[[StudyCounts], None]
@@ -270,6 +276,8 @@ class _Running:
     """Drawn by the sampler (not enqueued: no crowd setting, race run or retry)."""
     incumbent: bool = False
     """A race run the search started before the race (``_launch_incumbent``)."""
+    refine: bool = False
+    """A refinement run (``_launch_refine``)."""
 
 
 class Driver:
@@ -465,6 +473,8 @@ class Driver:
         dists = distributions(self.spec)
         copied = 0
         for t in other.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
+            if keys.REFINE_OF in t.user_attrs:
+                continue  # its value is its parent net's training on, not a measure of its configuration
             params = dict(t.params) if set(t.params) == set(dists) else self._encoded(t)
             if params is None or set(params) != set(dists) or t.value is None:
                 continue
@@ -764,6 +774,55 @@ class Driver:
         })  # fmt: skip
         return self._launch_next(slot)
 
+    def _launch_refine(self, slot: int) -> bool:
+        """Start a refinement run of the study's best single net on ``slot`` (``autotune.search.refine``); False when
+        none starts: ``refine_share`` is 0, its share of the workers (at least one, never all) is busy with such
+        runs, the seed race is running its rounds, the queue (crowd settings, retries) or the trial budget comes
+        first, no net is scored yet, or one run (× ``RACE_MARGIN``) would not fit the time left.
+
+        The parent is chosen when the run starts, over every net stored by then, refinement runs included: a run
+        that beat its parent is the next one's (the runs climb). Its seed is the study's refinement seed number k,
+        k = the refinement runs started before it."""
+        assert self.study is not None
+        st = self.spec.study
+        if st.refine_share <= 0.0 or (self._race_window() and not self._race_over):
+            return False
+        workers = self.spec.resources.workers
+        if sum(r.refine for r in self._running.values()) >= min(max(1, int(st.refine_share * workers)), workers - 1):
+            return False  # at least one worker, never all: the search always goes on
+        if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+            return False
+        self._refresh_counts()
+        if st.n_trials is not None and self.counts.started >= st.n_trials:
+            return False
+        trials = self.study.get_trials(deepcopy=False)
+        parent = refine.best_parent(
+            (t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials
+        )  # fmt: skip
+        if parent is None:
+            return False
+        source = trials[parent.trial]
+        top = TrainConfig.from_mapping(source.user_attrs[keys.CONFIG])
+        rungs = source.user_attrs.get(keys.RUNGS)
+        trained = top if parent.budget is None else trained_rung_config(top, parent.budget, rungs)
+        config = refine.refine_config(trained, st.refine_iterations, st.refine_learning_rate).to_mapping()
+        if self._race_cost(config) * RACE_MARGIN > self._time_left():
+            return False
+        index = sum(1 for t in trials if keys.REFINE_OF in t.user_attrs and keys.RETRY_OF not in t.user_attrs)
+        self.study.enqueue_trial(dict(source.params), user_attrs={
+            keys.CONFIG: config, keys.SEED: refine.refine_seed(st.seed, index), keys.REFINE_OF: parent.to_attr(),
+        })  # fmt: skip
+        return self._launch_next(slot)
+
+    def _parent_net(self, parent: refine.Parent) -> str:
+        """The convnetjs Net JSON of ``parent`` (a trial's net, or its kept rung's) from the artifact store."""
+        assert self.study is not None
+        attrs = self.study.get_trials(deepcopy=False)[parent.trial].user_attrs
+        try:
+            return net_text(self.storages, parent.trial, attrs, parent.budget)
+        except RecordError as exc:
+            raise _Refused(f"refinement: {exc}") from None
+
     def _fail_orphans(self, study: optuna.Study) -> list[int]:
         storage = self.storages.storage
         if _heartbeat_enabled(storage):
@@ -826,8 +885,9 @@ class Driver:
         c = self.counts
         trials = [t for t in self.study.get_trials(deepcopy=False) if keys.COPIED_FROM not in t.user_attrs]
         c.started = sum(1 for t in trials if _original(t) and t.state != TrialState.WAITING)
-        c.retries = sum(1 for t in trials if keys.RETRY_OF in t.user_attrs and keys.RACE_OF not in t.user_attrs)
+        c.retries = sum(1 for t in trials if keys.RETRY_OF in t.user_attrs and not _rerun(t))
         c.race_runs = sum(1 for t in trials if keys.RACE_OF in t.user_attrs)
+        c.refine_runs = sum(1 for t in trials if keys.REFINE_OF in t.user_attrs)
         c.complete = sum(1 for t in trials if t.state == TrialState.COMPLETE)
         c.pruned = sum(1 for t in trials if t.state == TrialState.PRUNED)
         c.failed = sum(1 for t in trials if t.state == TrialState.FAIL)
@@ -890,7 +950,7 @@ class Driver:
                     if self._race_window():
                         if self._launch_race(slot) or not self._race_over:
                             continue  # started a race run, or a round is still running: keep the slot for it
-                    if not self._launch_incumbent(slot) and not self._launch_next(slot):
+                    if not (self._launch_refine(slot) or self._launch_incumbent(slot) or self._launch_next(slot)):
                         break
             if not self._running:
                 if self._out_of_time() or not self._launch_possible():
@@ -962,7 +1022,9 @@ class Driver:
             seed = trial_seed(self.spec.study.seed, trial.number)
             trial.set_user_attr(keys.SEED, seed)
         full = trial.user_attrs.get(keys.CONFIG)  # an enqueued full config (crowd replay) wins over the params
-        race = keys.RACE_OF in trial.user_attrs
+        refine_of = trial.user_attrs.get(keys.REFINE_OF)
+        race = keys.RACE_OF in trial.user_attrs or refine_of is not None  # one training of a stored config
+        init_net: str | None = None
         try:
             params = space.sample(trial, self.spec)
             if full is not None:
@@ -970,6 +1032,8 @@ class Driver:
                 if not self._held([config]):
                     raise _Refused(self._over_memory(config))
                 rungs: tuple[int, ...] = (config.train_iterations,) if race and self.spec.ladder else ()
+                if refine_of is not None:
+                    init_net = self._parent_net(refine.Parent.from_attr(refine_of))
                 cost = self._model().predict(config, screened=False)  # measured with its own ε_test
                 predicted: Plan | None = Plan((config.train_iterations,), (cost,))
             else:
@@ -1023,11 +1087,13 @@ class Driver:
             epsilon_test_grid=self.spec.ladder_epsilon_grid if full is None and rungs else (),
             epsilon_test_screen_runs=self.spec.ladder_epsilon_screen_runs,
             deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,
+            init_net=init_net,
         )  # fmt: skip
         trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
         trial.set_user_attr(keys.RAY_NODE, self.pool.node_of(slot))
         self._running[slot] = _Running(trial, trial_id, slot, task, silent=race, sampled=not given,
-                                       incumbent=bool(trial.user_attrs.get(keys.INCUMBENT_RUN)))  # fmt: skip
+                                       incumbent=bool(trial.user_attrs.get(keys.INCUMBENT_RUN)),
+                                       refine=refine_of is not None)  # fmt: skip
         self.pool.submit(slot, task)
         self._notify()
         return True
@@ -1050,11 +1116,12 @@ class Driver:
             wall = self._gated_seconds(event.outcome)
             if wall is not None:
                 self._cheapest_gated_s = wall if self._cheapest_gated_s == 0.0 else min(self._cheapest_gated_s, wall)
-        if event.kind == "done" and not self._out_of_time() and not self._race_window() and not run.incumbent:
+        if (event.kind == "done" and not self._out_of_time() and not self._race_window() and not run.incumbent
+                and not run.refine):  # fmt: skip
             # the worker starts its next trial before this one's storage writes (in the race window the loop
             # starts race runs instead, once this trial's result is stored: it may be an entrant; after an
-            # incumbent's run too: its score decides whether the incumbent goes on)
-            if not self._launch_incumbent(event.slot):
+            # incumbent's or a refinement run too: its score decides the next one)
+            if not self._launch_refine(event.slot) and not self._launch_incumbent(event.slot):
                 self._launch_next(event.slot)
         if event.kind == "lost":
             self._fail(run.trial, run.killed or event.cause, retryable=not run.killed and event.retry)
@@ -1230,8 +1297,13 @@ def _best_score(trials: Sequence[FrozenTrial]) -> float | None:
 
 
 def _original(t: FrozenTrial) -> bool:
-    """A trial that uses budget: not a retry, not a race run, not copied history."""
-    return not any(k in t.user_attrs for k in (keys.RETRY_OF, keys.RACE_OF, keys.COPIED_FROM))
+    """A trial that uses budget: not a retry, not a race or refinement run, not copied history."""
+    return not any(k in t.user_attrs for k in (keys.RETRY_OF, keys.RACE_OF, keys.REFINE_OF, keys.COPIED_FROM))
+
+
+def _rerun(t: FrozenTrial) -> bool:
+    """A race or refinement run: trains a stored configuration again (never a draw of the sampler's)."""
+    return keys.RACE_OF in t.user_attrs or keys.REFINE_OF in t.user_attrs
 
 
 def clip_params(spec: StudySpec, params: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:

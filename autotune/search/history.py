@@ -14,7 +14,7 @@ from typing import Any
 from optuna.study import Study
 from optuna.trial import FrozenTrial, TrialState
 
-from autotune.search.keys import RACE_OF
+from autotune.search.keys import RACE_OF, REFINE_OF
 
 __all__ = ["DrawsView", "HistoryView"]
 
@@ -48,9 +48,10 @@ class HistoryView:
 
 
 class DrawsView(HistoryView):
-    """The history without its seed-race runs (``race_of``): each retrains a configuration the history holds
-    already, under the trial that selected it. Shown as trials of their own, the incumbent's many fresh runs
-    before the race (``[study] intensify_share``) would fill TPE's good tenth with copies of one configuration."""
+    """The history without its seed-race runs (``race_of``) and refinement runs (``refine_of``): each retrains a
+    configuration the history holds already, under the trial that selected it. Shown as trials of their own, the
+    incumbent's many fresh runs before the race (``[study] intensify_share``) would fill TPE's good tenth with
+    copies of one configuration, and a refinement run's score is its parent net's trained on, not a draw's."""
 
     def shown(self, trials: list[FrozenTrial]) -> list[FrozenTrial]:
-        return [t for t in trials if RACE_OF not in t.user_attrs]
+        return [t for t in trials if RACE_OF not in t.user_attrs and REFINE_OF not in t.user_attrs]

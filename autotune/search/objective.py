@@ -92,6 +92,9 @@ class TrialTask:
     epsilon_test_screen_runs: tuple[int, ...] = (50, 100)
     """Runs of each stage of the ε_test screens (a prefix of the official protocol): every value on the first, the
     better half on to the next (``autotune.screen_epsilons``)."""
+    init_net: str | None = None
+    """convnetjs Net JSON of a trained net to train on from (a refinement run, ``[study] refine_share``: the page
+    that loads weights with ``value_net.fromJSON`` and trains on); None: fresh weights from the seed."""
 
 
 @dataclasses.dataclass
@@ -253,7 +256,8 @@ def _run_ladder(
             limits.check(f"{where}: training at {done:,} of {total:,} frames")
 
         seed = rung_seed(task.seed, budget, task.rungs[-1], task.reseed_rungs)
-        result = train(config, seed, report_points=task.report_points, quick_eval=False, progress=progress)
+        result = train(config, seed, report_points=task.report_points, quick_eval=False, progress=progress,
+                       init_net=_init_net(task))  # fmt: skip
         attrs[keys.FRAMES_SIMULATED] += result.frames
         if result.diverged:
             attrs[keys.DIVERGED] = True
@@ -338,6 +342,15 @@ def _run_ladder(
                           keys.EVAL_SECONDS: rungs[-1][keys.EVAL_SECONDS]})  # fmt: skip
     assert value is not None
     return finish(COMPLETE, value, None, net_json=net_json, net_js=net_js)
+
+
+def _init_net(task: TrialTask) -> Any:
+    """The net ``task`` trains on from (``TrialTask.init_net``), or None."""
+    if task.init_net is None:
+        return None
+    from autotune import loads_net
+
+    return loads_net(task.init_net, where=f"trial {task.number}: init_net")
 
 
 def choose_epsilon(screens: Sequence[Sequence[float]]) -> int:
@@ -445,7 +458,7 @@ def _run(
     try:
         result = train(
             config, task.seed, reporter, report_points=task.report_points, quick_eval_runs=task.quick_runs,
-            quick_eval_frames=task.quick_frames, progress=progress,
+            quick_eval_frames=task.quick_frames, progress=progress, init_net=_init_net(task),
         )  # fmt: skip
     finally:
         quick_frames = len(curve) * task.quick_runs * task.quick_frames

@@ -229,7 +229,25 @@ def artifact_text(storages: Storages, trial: TrialRecord, key: str) -> str | Non
     return _artifact_by_id(storages, trial, trial.user_attrs.get(key), key)
 
 
+def net_text(storages: Storages, number: int, user_attrs: Mapping[str, Any], budget: int | None) -> str:
+    """The Net JSON of trial ``number``'s net (``budget`` None: its value's, ``artifact_net_json``; else its kept
+    rung's, ``artifact_rung_nets``) from the artifact store; ``RecordError`` naming the trial when not stored."""
+    if budget is None:
+        artifact_id, what = user_attrs.get(keys.ARTIFACT_NET_JSON), f"user attr {keys.ARTIFACT_NET_JSON}"
+    else:
+        artifact_id = (user_attrs.get(keys.ARTIFACT_RUNG_NETS) or {}).get(str(budget))
+        what = f"user attr {keys.ARTIFACT_RUNG_NETS} for {budget}"
+    text = _download(storages, number, artifact_id, what)
+    if text is None:
+        raise RecordError(f"trial {number}: no trained network stored ({what} missing)")
+    return text
+
+
 def _artifact_by_id(storages: Storages, trial: TrialRecord, artifact_id: Any, key: str) -> str | None:
+    return _download(storages, trial.number, artifact_id, key)
+
+
+def _download(storages: Storages, number: int, artifact_id: Any, key: str) -> str | None:
     if not artifact_id:
         return None
     with tempfile.TemporaryDirectory() as tmp:
@@ -238,7 +256,7 @@ def _artifact_by_id(storages: Storages, trial: TrialRecord, artifact_id: Any, ke
             download_artifact(artifact_store=storages.artifacts, file_path=str(path), artifact_id=str(artifact_id))
         except Exception as exc:  # the store raises its own not-found types
             raise RecordError(
-                f"trial {trial.number}: artifact {key}={artifact_id} not found in {storages.artifact_dir} "
+                f"trial {number}: artifact {key}={artifact_id} not found in {storages.artifact_dir} "
                 f"({type(exc).__name__}); pass the study's --artifacts DIR"
             ) from None
         return path.read_text(encoding="utf-8")
@@ -364,7 +382,8 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
     (``net_rung_<B>.json``): it is a net one could submit, like a model checkpoint kept for its evaluation score.
     Returns ``trial``, ``budget`` (None: the trial's value), ``score``, ``state``, ``seed`` (the one that net
     trained from: its rung's own under ``[ladder] reseed``), ``official_protocol`` and ``epsilon_test_time`` (what
-    it was scored with: the rung's choice under ``[ladder] epsilon_test_grid``, else the trial config's).
+    it was scored with: the rung's choice under ``[ladder] epsilon_test_grid``, else the trial config's) and
+    ``lineage`` (``lineage``: the nets it was refined from, [] for a fresh training).
     """
     best: tuple[tuple[float, int, int], dict[str, Any]] | None = None
     for trial in study.trials:
@@ -376,7 +395,24 @@ def best_net(study: StudyRecord) -> dict[str, Any] | None:
                                "seed": _rung_seed(attrs, budget),
                                "official_protocol": attrs.get(keys.OFFICIAL_PROTOCOL),
                                "epsilon_test_time": _rung_epsilon(attrs, budget)})  # fmt: skip
+    if best is not None:
+        best[1]["lineage"] = lineage(study, best[1]["trial"])
     return None if best is None else best[1]
+
+
+def lineage(study: StudyRecord, number: int) -> list[dict[str, Any]]:
+    """The nets trial ``number`` was refined from (``refine_of``, ``[study] refine_share``), its parent first and the
+    fresh training they all started from last; [] for a net trained from fresh weights."""
+    out: list[dict[str, Any]] = []
+    seen = {number}
+    parent = study.trials[number].user_attrs.get(keys.REFINE_OF) if 0 <= number < len(study.trials) else None
+    while isinstance(parent, Mapping) and isinstance(parent.get("trial"), int):
+        out.append({"trial": parent["trial"], "budget": parent.get("budget"), "score": parent.get("score")})
+        if parent["trial"] in seen or not 0 <= parent["trial"] < len(study.trials):
+            break  # a damaged record: never loop
+        seen.add(parent["trial"])
+        parent = study.trials[parent["trial"]].user_attrs.get(keys.REFINE_OF)
+    return out
 
 
 def _rung_epsilon(attrs: Mapping[str, Any], budget: int | None) -> Any:
@@ -448,15 +484,7 @@ def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path, budget:
     from autotune import TrainConfig, export_netjs, loads_net, write_net
     from autotune.search.ladder import trained_rung_config
 
-    if budget is None:
-        text = artifact_text(storages, trial, keys.ARTIFACT_NET_JSON)
-        what = f"user attr {keys.ARTIFACT_NET_JSON}"
-    else:
-        ids = trial.user_attrs.get(keys.ARTIFACT_RUNG_NETS) or {}
-        text = _artifact_by_id(storages, trial, ids.get(str(budget)), f"{keys.ARTIFACT_RUNG_NETS}[{budget}]")
-        what = f"user attr {keys.ARTIFACT_RUNG_NETS} for {budget}"
-    if text is None:
-        raise RecordError(f"trial {trial.number}: no trained network stored ({what} missing)")
+    text = net_text(storages, trial.number, trial.user_attrs, budget)
     if keys.CONFIG not in trial.user_attrs:
         raise RecordError(f"trial {trial.number}: no training config stored (user attr {keys.CONFIG} missing)")
     net = loads_net(text, where=f"trial {trial.number} net.json")
@@ -581,6 +609,7 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
 
     study, trial = _complete_trial(storages, study_name, number)
     evaluation = _evaluation(study)
+    parent = trial.user_attrs.get(keys.REFINE_OF)  # a refinement run trains on from its parent's stored net
     task = TrialTask(
         number=number,
         config=trial.user_attrs[keys.CONFIG],
@@ -590,6 +619,7 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
         quick_frames=int(evaluation.get("quick_frames", TrialTask.quick_frames)),
         final_protocol=str(trial.user_attrs.get(keys.OFFICIAL_PROTOCOL) or evaluation.get("final_protocol") or ""),
         timeout_s=None,
+        init_net=None if parent is None else parent_net(storages, study, parent),
     )
     t0 = time.perf_counter()
     outcome = run_trial(task, lambda step, frames, score: False)
@@ -603,6 +633,12 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
         study_name, number, float(trial.value), float(outcome.value), str(outcome.attrs[keys.OFFICIAL_PROTOCOL]),
         task.seed, "retrain", time.perf_counter() - t0,
     )  # fmt: skip
+
+
+def parent_net(storages: Storages, study: StudyRecord, refine_of: Mapping[str, Any]) -> str:
+    """The Net JSON a refinement run trained on from (its ``refine_of``), read from the artifact store."""
+    number, budget = int(refine_of["trial"]), refine_of.get("budget")
+    return net_text(storages, number, _numbered(study, number).user_attrs, None if budget is None else int(budget))
 
 
 def _spec_table(study: StudyRecord, table: str) -> dict[str, Any]:

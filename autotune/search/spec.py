@@ -5,7 +5,7 @@ Five tables, every key optional unless said otherwise::
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
-                  intensify_share, intensify_runs
+                  intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -86,6 +86,12 @@ moves ~0.35 mph with the evaluation's random stream (``spread.json``: a net at �
 best of each and 6 drawn at random), all five values on 100 runs chose what 50 → the best 2 on 100 chose on 34,
 and the two others lost 0.03 and 0.11 mph (mean −0.004) for 250 screened runs instead of 400 (a rung's
 evaluation: 750 runs' worth instead of 900); screening on 50 runs alone lost 0.047 on the mean and up to 0.67."""
+REFINE_ITERATIONS = 20_000
+"""Default ``[study] refine_iterations``: measured on gsurma's setting, 20k-iteration runs from a 74.39 net took
+about 10 s each on one core (training and the official score), and their best of 8–10 passed the parent by 0.6–0.8
+mph (``autotune.search.refine``)."""
+REFINE_LEARNING_RATE = 0.1
+"""Default ``[study] refine_learning_rate``: a tenth of the best net's own rate (``autotune.search.refine``)."""
 BALANCE_MIN_SHARE = 0.2
 BALANCEABLE_SAMPLERS = ("tpe", "random")
 """Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
@@ -225,6 +231,14 @@ class StudySection:
     intensify_runs: int | None = None
     """With intensify_share: the most fresh runs one configuration gets before the race (None: while its runs reach
     the study's best net); the next run of a configuration run n times beats their best with chance ≈ 1/(n+1)."""
+    refine_share: float = 0.0
+    """Share of the workers that train on from the study's best single net (``autotune.search.refine``; at least one
+    worker when above 0, never all of them, and not while the seed race runs its rounds; 0: no refinement)."""
+    refine_iterations: int = REFINE_ITERATIONS
+    """Length [iterations] of one refinement run: a training on from the best net's weights at its own settings,
+    exploring at its ε_min after ``refine.EXPLORE_DECISIONS`` decisions."""
+    refine_learning_rate: float = REFINE_LEARNING_RATE
+    """A refinement run's learning rate as a multiple of the best net's own (sgd, adagrad; adadelta has none)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -642,11 +656,23 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         if intensify <= 0.0:
             raise where.error("intensify_runs", "bounds the incumbent's runs before the race, but intensify_share = 0",
                               "set intensify_share (e.g. 0.25), or remove intensify_runs")  # fmt: skip
+    refine = _float(table.get("refine_share", d.refine_share), f"{src}: [study] refine_share", 0.0, 1.0)
+    refine_iterations = _int(table.get("refine_iterations", d.refine_iterations),
+                             f"{src}: [study] refine_iterations", 1_000, 10_000_000)  # fmt: skip
+    refine_lr = _float(table.get("refine_learning_rate", d.refine_learning_rate),
+                       f"{src}: [study] refine_learning_rate", 0.0, 100.0)  # fmt: skip
+    if refine_lr <= 0.0:
+        raise where.error("refine_learning_rate", f"must be above 0, got {refine_lr}",
+                          "e.g. refine_learning_rate = 0.1 (a tenth of the best net's own)")  # fmt: skip
+    for key in ("refine_iterations", "refine_learning_rate"):
+        if key in table and refine <= 0.0:
+            raise where.error(key, "sets the refinement runs, but refine_share = 0",
+                              f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
-        intensify_runs,
+        intensify_runs, refine, refine_iterations, refine_lr,
     )  # fmt: skip
 
 

@@ -1,0 +1,105 @@
+"""Refinement: training on from the study's best single net, as the DeepTraffic page let its users do.
+
+A page that appended trained weights to its net.js (``brain.value_net.fromJSON(...)``) trained on from them
+at its own settings: the leaderboard's best v2 net re-scored here (jnorthrup-v05, 75.80 with 10 other
+agents) is such a net — a linear net whose weights were carried through six versions of its file, the last
+one training at a learning rate of 1e-8. No fresh training of any configuration the search has measured
+reaches it (the best of 54 trainings of the two best found: 75.57). A refinement run is that step: the
+best single net's config, trained for ``[study] refine_iterations`` from the best net's weights and a fresh
+seed, and scored with the official protocol like any trial.
+
+What it changes in the config (``refine_config``), and why:
+
+* exploration: ε falls from 1 to the config's ε_min over the first ``EXPLORE_DECISIONS`` decisions
+  (``learning_steps_burnin`` ``BURNIN``, ``learning_steps_total`` ``EXPLORE_DECISIONS``). Measured on
+  gsurma's setting (a 74.39 net, 10 runs of 20k each): the net's own schedule — ε near 1 for most of a short
+  run — took every run below the parent (66.35–72.89), the short one left 7 of 10 at or above 74.1;
+* learning starts once ``START_LEARN`` transitions are stored (or the config's own threshold, if lower);
+* the learning rate is ``[study] refine_learning_rate`` × the config's (sgd and adagrad step by it;
+  adadelta has none): a tenth kept the runs' median at 74.66 and reached 75.22 (the parent's own rate:
+  74.52 and 75.03).
+
+The study's best net is the parent of each run (``best_parent``); a run that beats it is the next parent, so
+the runs climb (a (1 + λ) search whose mutation is deepqlearn training). Each run is an ordinary trial
+(``refine_of``: its parent's trial and rung), never shown to the sampler, never a race entrant and never using
+the trial budget; its net reproduces from its parent's net, its config and its seed (``autotune evaluate
+--trial S:N --retrain``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from autotune import TrainConfig
+from autotune.search import keys
+from autotune.search.records import net_rank, scored_nets
+from autotune.search.seeds import derived_seed
+
+__all__ = [
+    "BURNIN", "EXPLORE_DECISIONS", "START_LEARN", "REFINE_SALT", "Parent", "best_parent", "refine_config",
+    "refine_seed",
+]  # fmt: skip
+
+EXPLORE_DECISIONS = 1_000
+"""``learning_steps_total`` of a refinement run: ε reaches the config's ε_min after this many decisions."""
+BURNIN = 100
+"""``learning_steps_burnin`` of a refinement run (at most the config's own)."""
+START_LEARN = 500
+"""``start_learn_threshold`` of a refinement run (at most the config's own)."""
+REFINE_SALT = 0x2EF1_4E
+"""Mixed into a refinement run's seed so it never coincides with a trial's, a rung's or a race run's."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Parent:
+    """The net a refinement run trains on from: a trial's value (``budget`` None) or one of its kept rungs."""
+
+    trial: int
+    budget: int | None
+    score: float
+
+    def to_attr(self) -> dict[str, Any]:
+        """The ``refine_of`` user attr of a run trained from it."""
+        return {"trial": self.trial, "budget": self.budget, "score": self.score}
+
+    @classmethod
+    def from_attr(cls, attr: Mapping[str, Any]) -> Parent:
+        budget = attr.get("budget")
+        return cls(int(attr["trial"]), None if budget is None else int(budget), float(attr["score"]))
+
+
+def best_parent(trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]]) -> Parent | None:
+    """The best single net of ``trials`` (number, user attrs, value, COMPLETE?): ``records.best_net``'s choice over
+    ``scored_nets``, refinement runs included; None before any net is scored."""
+    best: tuple[tuple[float, int, int], Parent] | None = None
+    for number, attrs, value, complete in trials:
+        for score, budget in scored_nets(attrs, value, complete):
+            rank = net_rank(score, budget, number)
+            if best is None or rank > best[0]:
+                best = (rank, Parent(number, budget, score))
+    return None if best is None else best[1]
+
+
+def refine_config(parent: TrainConfig, iterations: int, learning_rate: float) -> TrainConfig:
+    """The config of a refinement run of a net trained with ``parent``: ``iterations`` long, a short ε schedule
+    (``EXPLORE_DECISIONS``), learning from ``START_LEARN`` stored transitions, ``learning_rate`` × its rate; the
+    rest — inputs, layers, γ, the trainer, batch, memory, ε_min and ε_test — is the parent's."""
+    return parent.replace(
+        train_iterations=int(iterations),
+        learning_steps_burnin=min(BURNIN, parent.learning_steps_burnin),
+        learning_steps_total=EXPLORE_DECISIONS,
+        start_learn_threshold=min(START_LEARN, parent.start_learn_threshold),
+        learning_rate=parent.learning_rate * learning_rate,
+    )
+
+
+def refine_seed(study_seed: int, index: int) -> int:
+    """The training seed of a study's refinement run number ``index`` (0, 1, …: in the order they were started)."""
+    return derived_seed(study_seed, REFINE_SALT, index)
+
+
+def is_refinement(user_attrs: Mapping[str, Any]) -> bool:
+    """Whether a trial is a refinement run (``refine_of``)."""
+    return keys.REFINE_OF in user_attrs

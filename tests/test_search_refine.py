@@ -1,0 +1,208 @@
+"""Refinement (``[study] refine_share``): runs that train on from the study's best single net.
+
+The pure rules (the parent, the config, the seed), the spec keys, and the driver on a journal study: which net
+each run starts from, on which share of the workers, after what, and that the runs use no budget and never reach
+the sampler or the race.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import optuna
+import pytest
+
+from autotune.convnet.netjson import dumps_net
+from autotune.learner.training import train
+from autotune.search import keys, racing, refine
+from autotune.search.driver import Driver, StudyCounts, trial_seed
+from autotune.search.history import DrawsView
+from autotune.search.ladder import trained_rung_config
+from autotune.search.records import RecordError, best_net, lineage, read_study
+from autotune.search.spec import REFINE_ITERATIONS, REFINE_LEARNING_RATE, SpecError
+from tests.conftest import FakePool
+from tests.test_search_ladder import TINY, _driver_on_journal, _spec
+
+COMPLETE, PRUNED = optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED
+
+
+def test_a_refinement_config_is_its_parents_with_a_short_schedule_and_a_smaller_rate() -> None:
+    parent = TINY.replace(learning_rate=0.01, epsilon_min=0.02, epsilon_test_time=0.05)
+    c = refine.refine_config(parent, 20_000, 0.1)
+    assert c.train_iterations == 20_000 and c.learning_rate == pytest.approx(0.001)
+    assert c.learning_steps_total == refine.EXPLORE_DECISIONS and c.learning_steps_burnin == refine.BURNIN
+    assert c.start_learn_threshold == min(refine.START_LEARN, parent.start_learn_threshold)  # 100: its own
+    same = {f.name for f in dataclasses.fields(c)} - {
+        "train_iterations", "learning_rate", "learning_steps_total", "learning_steps_burnin", "start_learn_threshold",
+    }  # fmt: skip
+    assert all(getattr(c, name) == getattr(parent, name) for name in same)  # inputs, layers, ε_min, ε_test, …
+    late = parent.replace(learning_steps_burnin=50, start_learn_threshold=400, experience_size=1000)
+    c = refine.refine_config(late, 5_000, 1.0)
+    assert c.learning_steps_burnin == 50 and c.start_learn_threshold == 400 and c.learning_rate == 0.01
+
+
+def test_the_parent_is_the_best_single_net_refinement_runs_included() -> None:
+    rung = {keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 74.8}],
+            keys.ARTIFACT_RUNG_NETS: {"400": "id"}}  # fmt: skip
+    assert refine.best_parent([]) is None
+    assert refine.best_parent([(0, {}, 74.0, True), (1, rung, None, False)]) == refine.Parent(1, 400, 74.8)
+    refined = {keys.REFINE_OF: {"trial": 1, "budget": 400, "score": 74.8}}
+    trials = [(0, {}, 74.0, True), (1, rung, None, False), (2, refined, 75.1, True)]
+    assert refine.best_parent(trials) == refine.Parent(2, None, 75.1)
+    assert refine.best_parent([(0, {}, 74.0, False)]) is None  # a value only counts when COMPLETE
+    parent = refine.Parent(1, 400, 74.8)
+    assert refine.Parent.from_attr(parent.to_attr()) == parent
+
+
+def test_refinement_seeds_are_their_own() -> None:
+    seeds = [refine.refine_seed(0, i) for i in range(50)]
+    assert len(set(seeds)) == 50 and seeds == [refine.refine_seed(0, i) for i in range(50)]
+    others = {trial_seed(0, i) for i in range(50)} | {racing.race_seed(0, i) for i in range(50)}
+    assert not others & set(seeds)
+    assert refine.refine_seed(1, 0) != seeds[0]
+
+
+def test_refine_keys_are_checked() -> None:
+    st = _spec().study
+    assert (st.refine_share, st.refine_iterations, st.refine_learning_rate) == (0.0, REFINE_ITERATIONS,
+                                                                                 REFINE_LEARNING_RATE)  # fmt: skip
+    st = _spec(refine_share=0.5, refine_iterations=5000, refine_learning_rate=0.5).study
+    assert (st.refine_share, st.refine_iterations, st.refine_learning_rate) == (0.5, 5000, 0.5)
+    with pytest.raises(SpecError, match=r"\[study\] refine_share: 2 is out of range; use \[0, 1\]"):
+        _spec(refine_share=2)
+    with pytest.raises(SpecError, match=r"\[study\] refine_iterations: .*refine_share = 0; set refine_share"):
+        _spec(refine_iterations=5000)
+    with pytest.raises(SpecError, match=r"\[study\] refine_learning_rate: must be above 0, got 0.0"):
+        _spec(refine_share=0.5, refine_learning_rate=0.0)
+    with pytest.raises(SpecError, match=r"refine_iterations: 10 is out of range"):
+        _spec(refine_share=0.5, refine_iterations=10)
+    with pytest.raises(SpecError, match=r"refine_shares.*did you mean 'refine_share'"):
+        _spec(refine_shares=0.5)
+
+
+def _net_text(seed: int) -> str:
+    return dumps_net(train(TINY.replace(train_iterations=0), seed=seed, quick_eval=False).convnet())
+
+
+def _upload(storages: Any, study: optuna.Study, text: str) -> str:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "net.json"
+        path.write_text(text)
+        return optuna.artifacts.upload_artifact(artifact_store=storages.artifacts, file_path=str(path),
+                                                study_or_trial=study)  # fmt: skip
+
+
+def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: Path) -> None:
+    """``_launch_refine``: each run trains on from the best single net stored when it starts (its net sent with the
+    task, its config ``refine_config`` of what that net trained with, its seed the study's next refinement seed); on
+    ``refine_share`` of the workers (at least one, never all); after the queue, not in the race's rounds, not once
+    the trial budget is spent or when one run would not fit the time left; using no budget, never shown to the
+    sampler."""
+    spec = _spec(race_configs=2, race_seeds=1, n_trials=20, timeout_s=3600, refine_share=0.5,
+                 refine_iterations=3000).with_overrides(storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    texts = [_net_text(seed) for seed in range(4)]
+    chosen = TINY.replace(epsilon_test_time=0.05)
+
+    def add(value: float | None, state: Any = COMPLETE, net: str | None = None, **attrs: Any) -> int:
+        if net is not None:  # its net, as the driver stores a finished trial's (or its kept 400 rung's)
+            artifact = _upload(storages, study, net)
+            rung = keys.RUNGS in attrs
+            attrs[keys.ARTIFACT_RUNG_NETS if rung else keys.ARTIFACT_NET_JSON] = {"400": artifact} if rung else artifact
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=state,
+                                                  user_attrs={keys.CONFIG: chosen.to_mapping(), **attrs}))  # fmt: skip
+        return len(study.trials) - 1
+
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert not driver._launch_refine(0)  # noqa: SLF001 - no net scored yet
+    add(74.0, net=texts[0])
+    add(73.0)
+    assert driver._launch_refine(0)  # noqa: SLF001
+    run = study.trials[-1]
+    assert run.user_attrs[keys.REFINE_OF] == {"trial": 0, "budget": None, "score": 74.0}
+    assert run.user_attrs[keys.CONFIG] == refine.refine_config(chosen, 3000, 0.1).to_mapping()
+    assert run.user_attrs[keys.SEED] == refine.refine_seed(spec.study.seed, 0)
+    task = driver.pool.tasks[-1]
+    assert task.init_net == texts[0] and task.rungs == (3000,) and task.epsilon_test_grid == ()
+    assert not task.prune_static and task.min_weight_change == 0.0 and driver._running[0].silent  # noqa: SLF001
+    assert not driver._launch_refine(1)  # noqa: SLF001 - half of the 2 workers: one such run at a time
+    # it beats its parent: the next run trains on from it (the runs climb)
+    running = driver._running.pop(0).trial  # noqa: SLF001
+    running.set_user_attr(keys.ARTIFACT_NET_JSON, _upload(storages, study, texts[1]))
+    study.tell(running, 74.6)
+    assert driver._launch_refine(0)  # noqa: SLF001
+    nxt = study.trials[-1]
+    assert nxt.user_attrs[keys.REFINE_OF] == {"trial": 2, "budget": None, "score": 74.6}
+    assert nxt.user_attrs[keys.SEED] == refine.refine_seed(spec.study.seed, 1)
+    assert driver.pool.tasks[-1].init_net == texts[1]
+    study.tell(driver._running.pop(0).trial, 73.9)  # noqa: SLF001 - worse: the parent stays
+    # a kept rung that beats every value is the next parent, at the settings that rung trained with
+    rungs = [{keys.BUDGET: 400, keys.SCORE: 75.2, keys.EPSILON_TEST: 0.02}]
+    kept = add(None, PRUNED, net=texts[2], **{keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: rungs})
+    assert driver._launch_refine(0)  # noqa: SLF001
+    run = study.trials[-1]
+    assert run.user_attrs[keys.REFINE_OF] == {"trial": kept, "budget": 400, "score": 75.2}
+    expected = refine.refine_config(trained_rung_config(chosen, 400, rungs), 3000, 0.1)
+    assert run.user_attrs[keys.CONFIG] == expected.to_mapping() and expected.epsilon_test_time == 0.02
+    assert driver.pool.tasks[-1].init_net == texts[2]
+    study.tell(driver._running.pop(0).trial, 75.0)  # noqa: SLF001
+    # no budget used, never shown to the sampler, never a race entrant
+    driver._refresh_counts()  # noqa: SLF001
+    refined = [t for t in study.trials if keys.REFINE_OF in t.user_attrs]
+    assert driver.counts.started == 3 and driver.counts.refine_runs == len(refined) == 3
+    shown = DrawsView(study).get_trials(deepcopy=False)
+    assert not any(keys.REFINE_OF in t.user_attrs for t in shown) and len(shown) == 3
+    assert not {t.number for t in refined} & set(driver._race_field()[0])  # noqa: SLF001
+    # the queue first; a spent budget, a single worker, share 0, the race's rounds, no time: none
+    study.enqueue_trial(params)
+    assert not driver._launch_refine(0)  # noqa: SLF001
+    assert driver._launch_next(0)  # noqa: SLF001
+    study.tell(driver._running.pop(0).trial, 70.0)  # noqa: SLF001
+    for other in (spec.with_overrides(n_trials=4), spec.with_overrides(workers=1),
+                  dataclasses.replace(spec, study=dataclasses.replace(spec.study, refine_share=0.0))):  # fmt: skip
+        d = Driver(other, storages)
+        d.open_study()
+        d._t0, d.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        assert not d._launch_refine(0)  # noqa: SLF001
+    driver._t0 = time.perf_counter() - 0.8 * 3600  # noqa: SLF001 - the race window: its rounds come first
+    assert not driver._launch_refine(0)  # noqa: SLF001
+    driver._race_over = True  # noqa: SLF001 - the race has run: the time left is the search's and refinement's
+    assert driver._launch_refine(0)  # noqa: SLF001
+    study.tell(driver._running.pop(0).trial, 74.0)  # noqa: SLF001
+    driver._t0 = time.perf_counter() - 3600 + 0.01  # noqa: SLF001 - no run fits the time left
+    assert not driver._launch_refine(0)  # noqa: SLF001
+
+
+def test_a_refined_best_net_names_its_lineage_and_a_missing_parent_net_is_one_line(tmp_path: Path) -> None:
+    spec = _spec(refine_share=0.5).with_overrides(storage=str(tmp_path / "j.log"), workers=2)
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    refined = {"trial": 0, "budget": 400, "score": 74.2}
+    for value, attrs in ((74.0, {}), (74.6, {keys.REFINE_OF: refined}),
+                         (75.1, {keys.REFINE_OF: {"trial": 1, "budget": None, "score": 74.6}})):  # fmt: skip
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
+                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+    record = read_study(storages, "lad")
+    net = best_net(record)
+    assert net is not None and net["trial"] == 2
+    assert net["lineage"] == [{"trial": 1, "budget": None, "score": 74.6}, refined]
+    assert lineage(record, 0) == []
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert driver._launch_refine(0)  # noqa: SLF001 - trial 2 stores no net: the run fails, saying so
+    run = study.trials[-1]
+    assert run.state == optuna.trial.TrialState.FAIL and not driver.pool.tasks
+    assert run.user_attrs[keys.CAUSE] == "refinement: trial 2: no trained network stored (user attr " \
+                                         "artifact_net_json missing)"  # fmt: skip
+    with pytest.raises(RecordError, match="trial 0: no trained network stored"):
+        from autotune.search.records import parent_net
+
+        parent_net(storages, record, refined)
+
+
+def test_refinement_runs_use_no_budget() -> None:
+    counts = StudyCounts(budget=5, complete=9, pruned=2, retries=1, race_runs=2, refine_runs=4)
+    assert counts.finished == 4
+    assert counts.reruns == "1 retries, 2 race runs, 4 refinement runs"

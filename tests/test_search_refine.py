@@ -46,12 +46,14 @@ def test_a_refinement_config_is_its_parents_with_a_short_schedule_and_a_smaller_
 
 
 def test_the_parent_is_the_best_single_net_refinement_runs_included() -> None:
-    rung = {keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 74.8}],
+    rung: dict[str, Any] = {keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 74.8}],
             keys.ARTIFACT_RUNG_NETS: {"400": "id"}}  # fmt: skip
     assert refine.best_parent([]) is None
     assert refine.best_parent([(0, {}, 74.0, True), (1, rung, None, False)]) == refine.Parent(1, 400, 74.8)
-    refined = {keys.REFINE_OF: {"trial": 1, "budget": 400, "score": 74.8}}
-    trials = [(0, {}, 74.0, True), (1, rung, None, False), (2, refined, 75.1, True)]
+    refined: dict[str, Any] = {keys.REFINE_OF: {"trial": 1, "budget": 400, "score": 74.8}}
+    trials: list[tuple[int, dict[str, Any], float | None, bool]] = [
+        (0, {}, 74.0, True), (1, rung, None, False), (2, refined, 75.1, True),
+    ]  # fmt: skip
     assert refine.best_parent(trials) == refine.Parent(2, None, 75.1)
     assert refine.best_parent([(0, {}, 74.0, False)]) is None  # a value only counts when COMPLETE
     parent = refine.Parent(1, 400, 74.8)

@@ -543,6 +543,8 @@ class TrialRow:
     """Fresh seed index of a race run (with ``race_of``)."""
     incumbent: bool = False
     """A race run the search started before the race (``incumbent_run``: ``[study] intensify_share``)."""
+    refine_of: int | None = None
+    """A refinement run (``[study] refine_share``): the trial whose net it trained on from."""
     predicted_cost_s: float | None = None
     cause: str | None = None
     retryable: bool = False
@@ -573,6 +575,7 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 race_of=a.get("race_of"),
                 race_seed=a.get("race_seed"),
                 incumbent=bool(a.get("incumbent_run")),
+                refine_of=(a.get("refine_of") or {}).get("trial"),
                 predicted_cost_s=a.get("predicted_cost_s"),
                 cause=a.get("cause"),
                 retryable=bool(a.get("retryable")),
@@ -616,8 +619,9 @@ def _complete_by(rows: Iterable[TrialRow], t_s: float) -> list[TrialRow]:
 
 
 def best_single(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> TrialRow | None:
-    """The best COMPLETE trial finished by ``t_s`` (ties: the earlier); ``enqueued=False`` skips warm-start trials."""
-    done = [r for r in _complete_by(rows, t_s) if enqueued or r.warm_start is None]
+    """The best COMPLETE trial finished by ``t_s`` (ties: the earlier) that is a configuration's own training (no
+    refinement run: its config trains on from its parent's net); ``enqueued=False`` skips warm-start trials."""
+    done = [r for r in _complete_by(rows, t_s) if r.refine_of is None and (enqueued or r.warm_start is None)]
     return max(done, key=lambda r: (r.value, -(r.end_s or 0.0)), default=None)
 
 
@@ -631,13 +635,18 @@ class Net:
 
 
 def best_net(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> Net | None:
-    """The best net stored by ``t_s`` (a trial's value or a kept rung of any finished trial, ranked as ``autotune
-    best`` ranks them: ``records.net_rank``); ``enqueued=False`` skips warm-start trials."""
+    """The best net stored by ``t_s`` (a trial's value or a kept rung of any finished trial, refinement runs
+    included, ranked as ``autotune best`` ranks them: ``records.net_rank``); ``enqueued=False`` skips warm-start
+    trials and the refinement runs that descend from one (``lineage_root``)."""
     from autotune.search.records import net_rank
 
+    rows = list(rows)
+    by_number = {r.number: r for r in rows}
     best: tuple[tuple[float, int, int], Net] | None = None
     for r in rows:
-        if r.end_s is None or r.end_s > t_s or r.state not in FINISHED or (not enqueued and r.warm_start is not None):
+        if r.end_s is None or r.end_s > t_s or r.state not in FINISHED:
+            continue
+        if not enqueued and lineage_root(r, by_number).warm_start is not None:
             continue
         nets = [Net(float(r.value), r.number, None)] if r.state == "COMPLETE" and r.value is not None else []
         nets += [Net(score, r.number, budget) for budget, score in r.rung_scores]
@@ -646,6 +655,16 @@ def best_net(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) -> 
             if best is None or rank > best[0]:
                 best = (rank, n)
     return None if best is None else best[1]
+
+
+def lineage_root(row: TrialRow, by_number: Mapping[int, TrialRow]) -> TrialRow:
+    """The fresh training a refinement run descends from (``refine_of`` followed to its end); ``row`` itself when it
+    is none."""
+    seen = {row.number}
+    while row.refine_of is not None and row.refine_of in by_number and row.refine_of not in seen:
+        row = by_number[row.refine_of]
+        seen.add(row.number)
+    return row
 
 
 def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int], int] = ((), 1)) -> TrialRow | None:
@@ -788,6 +807,7 @@ def run_figures(rows: Sequence[TrialRow], wall_s: float, workers: int, limit_s: 
         "worst_overrun": worst_overrun(rows, limit_s),
         "running_best": running_best(rows),
         **incumbent_figures(rows, workers * wall_s),
+        **refine_figures(rows, workers * wall_s),
     }
 
 
@@ -1193,6 +1213,20 @@ def _pct(x: float | None) -> str:
     return "–" if x is None else f"{100 * x:.1f} %"
 
 
+def refine_figures(rows: Sequence[TrialRow], worker_s: float) -> dict[str, Any]:
+    """The refinement runs: how many, their share of the worker time, their best score, how many beat their
+    parent's net (``refine_improved``), and the lineage of the best one (its fresh root's trial number)."""
+    runs = [r for r in rows if r.refine_of is not None]
+    scores = [r.value for r in runs if r.state == "COMPLETE" and r.value is not None]
+    busy = sum(r.wall_s or 0.0 for r in runs)
+    best = max((r for r in runs if r.state == "COMPLETE" and r.value is not None), key=lambda r: r.value or 0.0,
+               default=None)  # fmt: skip
+    by_number = {r.number: r for r in rows}
+    return {"refine_runs": len(runs), "refine_share": busy / worker_s if worker_s > 0 else None,
+            "refine_best": max(scores) if scores else None,
+            "refine_root": lineage_root(best, by_number).number if best is not None else None}  # fmt: skip
+
+
 def format_table(result: Mapping[str, Any]) -> list[str]:
     """The arm × checkpoint table, then one line of per-run figures per arm."""
     head = f"{'arm':<7} {'runs':>4} {'min':>5} {'best':>7} {'reseed mean':>12} {'not enqueued':>13}  per run (best)"
@@ -1218,7 +1252,9 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
                 f"(n={run['cost_model_n']}), limit-stopped {_pct(run['limit_share'])} of worker time, refused draws "
                 f"{_pct(run['refused_share'])}, worst trial {_f(run['worst_overrun'])}× its limit, "
                 f"{run.get('incumbent_runs', 0)} incumbent runs ({_pct(run.get('incumbent_share'))} of worker time, "
-                f"best {_f(run.get('incumbent_best'))}), reseeding "
+                f"best {_f(run.get('incumbent_best'))}), {run.get('refine_runs', 0)} refinement runs "
+                f"({_pct(run.get('refine_share'))} of worker time, best {_f(run.get('refine_best'))}, from trial "
+                f"{run.get('refine_root')}), reseeding "
                 f"{_f(run.get('reseed_wall_s'), '.0f')} s, load {run['load_start']} → {run['load_end']}"
             )
     ref = result.get("reference") or {}

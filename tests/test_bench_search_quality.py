@@ -434,3 +434,26 @@ def test_reference_and_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
         assert sq.main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and err.startswith(f"{argv[0]} ")
+
+
+def test_refinement_runs_count_as_nets_not_as_picks() -> None:
+    """A refinement run's net is a best single net; its configuration is never the pick (it trains on from its
+    parent's net), and one descending from a crowd setting is not the search's own find ("not enqueued")."""
+    study = optuna.create_study(direction="maximize")
+    study.add_trial(optuna.trial.create_trial(value=75.2, user_attrs={"refine_of": {"trial": 0, "budget": None,
+                                                                                    "score": 74.9}}))  # fmt: skip
+    assert sq.rows_from_trials(study.get_trials(), time.time())[0].refine_of == 0
+    rows = [
+        row(0, 74.9, 30, warm_start="crowd:a"),
+        row(1, 74.0, 60),
+        dataclasses.replace(row(2, 75.2, 90, wall_s=20.0), refine_of=0),
+        dataclasses.replace(row(3, 75.4, 120, wall_s=20.0), refine_of=2),
+        dataclasses.replace(row(4, 74.5, 150, wall_s=20.0), refine_of=1),
+        dataclasses.replace(row(5, None, 160, state="PRUNED", wall_s=20.0), refine_of=3),
+    ]
+    assert sq.best_net(rows, 200) == sq.Net(75.4, 3, None)
+    assert sq.best_net(rows, 200, enqueued=False) == sq.Net(74.5, 4, None)  # 2 and 3 descend from crowd:a
+    assert sq.lineage_root(rows[3], {r.number: r for r in rows}).number == 0
+    assert sq.best_single(rows, 200).number == 0 and sq.chosen_trial(rows, 200).number == 0
+    figures = sq.refine_figures(rows, 400.0)
+    assert figures == {"refine_runs": 4, "refine_share": pytest.approx(0.2), "refine_best": 75.4, "refine_root": 0}

@@ -664,8 +664,8 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if refine_lr <= 0.0:
         raise where.error("refine_learning_rate", f"must be above 0, got {refine_lr}",
                           "e.g. refine_learning_rate = 0.1 (a tenth of the best net's own)")  # fmt: skip
-    for key in ("refine_iterations", "refine_learning_rate"):
-        if key in table and refine <= 0.0:
+    for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr)):
+        if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
     return StudySection(

@@ -116,6 +116,9 @@ class TrialPoint:
     """The configuration: identical settings share it (the crowd: config_hash; else the stored config)."""
     repo: str | None
     """The crowd row's repository (None for our own trials)."""
+    refined_from: int | None = None
+    """A refinement run (``[study] refine_share``): the trial whose net it trained on from. Its score is that net's,
+    trained on: a best single net, never a measure of its settings."""
 
     def custom(self) -> list[str]:
         """Its ``customdata`` row (``provenance.CUSTOMDATA``)."""
@@ -143,6 +146,12 @@ class StudyData:
     def scored(self) -> list[TrialPoint]:
         """Trials with a score."""
         return [t for t in self.trials if t.value is not None]
+
+    @property
+    def settings_scored(self) -> list[TrialPoint]:
+        """Trials whose score measures their settings: ``scored`` without refinement runs (``refined_from``), which
+        train on from another trial's net."""
+        return [t for t in self.scored if t.refined_from is None]
 
     @property
     def engines(self) -> list[str]:
@@ -323,6 +332,11 @@ def _kind(source: str, attrs: Mapping[str, Any], row: Any) -> tuple[str, str] | 
     return pv.SEARCHED, "exact"
 
 
+def _refined_from(attrs: Mapping[str, Any]) -> int | None:
+    parent = attrs.get(keys.REFINE_OF)
+    return int(parent["trial"]) if isinstance(parent, Mapping) and isinstance(parent.get("trial"), int) else None
+
+
 def study_data(study: StudyRecord) -> StudyData:
     """The finished trials of ``study`` (COMPLETE, PRUNED, FAIL) as ``TrialPoint``s, in trial order."""
     if study.direction != "MAXIMIZE":
@@ -374,6 +388,7 @@ def study_data(study: StudyRecord) -> StudyData:
                 confidence=confidence,
                 config_key=key,
                 repo=row.repo if row is not None else attrs.get("repo"),
+                refined_from=_refined_from(attrs),
             )
         )
     return StudyData(study.name, source, tuple(points), dict(study.user_attrs), skipped)
@@ -417,7 +432,7 @@ def progress(data: StudyData) -> Progress | Empty:
 
 def size_scatter(data: StudyData) -> SizeScatter | Empty:
     """Parameter count against score (trials that record both)."""
-    pts = [t for t in data.scored if t.param_count is not None]
+    pts = [t for t in data.settings_scored if t.param_count is not None]
     if not pts:
         return Empty(f"{data.name}: no scored trial records its parameter count")
     return SizeScatter(
@@ -431,7 +446,7 @@ def hyperparameter_panels(data: StudyData) -> dict[str, Panel | Empty]:
     """One panel per hyperparameter of ``HYPERPARAMETERS``: its real value against score."""
     out: dict[str, Panel | Empty] = {}
     for name in HYPERPARAMETERS:
-        pts = [t for t in data.scored if name in t.settings]
+        pts = [t for t in data.settings_scored if name in t.settings]
         if not pts:
             out[name] = Empty(f"{data.name}: {name} not recorded in any scored trial")
             continue
@@ -499,12 +514,13 @@ def _feature_matrix(points: Sequence[TrialPoint], features: Sequence[str], stand
 
 
 def tsne_map(studies: Sequence[StudyData], seed: int = 0, min_points: int = 5) -> TsneMap | Empty:
-    """Joint t-SNE (sklearn, ``random_state=seed``) of every scored trial's settings, coloured by score.
+    """Joint t-SNE (sklearn, ``random_state=seed``) of every scored trial's settings (refinement runs left out:
+    ``StudyData.settings_scored``), coloured by score.
 
     Features: the hyperparameters that vary across the points, plus log10 parameter count; missing
     values take the column's median (e.g. v1 rows have no other_agents).
     """
-    pts = [(d.source, t) for d in studies for t in d.scored]
+    pts = [(d.source, t) for d in studies for t in d.settings_scored]
     if len(pts) < min_points:
         return Empty(f"t-SNE needs at least {min_points} scored trials; there are {len(pts)}")
     features = [
@@ -532,9 +548,9 @@ def tsne_map(studies: Sequence[StudyData], seed: int = 0, min_points: int = 5) -
 
 def configurations(data: StudyData) -> list[TrialPoint]:
     """The scored trials, identical settings once: the first trial of each configuration, scored with the mean
-    of every trial of it (so repeats of one setting are not independent points)."""
+    of every trial of it (so repeats of one setting are not independent points); refinement runs left out."""
     groups: dict[str, list[TrialPoint]] = {}
-    for t in data.scored:
+    for t in data.settings_scored:  # a refinement run's score is its parent net's, trained on
         groups.setdefault(t.config_key, []).append(t)
     out = []
     for group in groups.values():

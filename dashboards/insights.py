@@ -244,7 +244,7 @@ def evaluate_study(data: StudyData, side: str, *, by_repository: bool | None = N
     group_kinds = []
     for group, members in groups:  # the score kinds of the trials behind each group's configurations
         member_keys = {m.config_key for m in members}
-        present = {t.kind for t in data.scored if t.config_key in member_keys}
+        present = {t.kind for t in data.settings_scored if t.config_key in member_keys}
         group_kinds.append((group, members, [k for k in pv.KIND_LABEL if k in present]))
     for insight in INSIGHTS:
         for group, members, kinds in group_kinds:

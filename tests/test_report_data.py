@@ -644,6 +644,7 @@ def test_refinement_runs_count_as_nets_not_as_settings() -> None:
     insights leave it out."""
     study = contract_study(None, n=12)
     best = max(study.trials, key=lambda t: t.value if t.value is not None else -math.inf)
+    assert best.value is not None
     attrs = {**best.user_attrs, "refine_of": {"trial": best.number, "budget": None, "score": best.value}}
     study.add_trial(optuna.trial.create_trial(value=best.value + 1.0, params=best.params,
                                               distributions=best.distributions, user_attrs=attrs))  # fmt: skip
@@ -651,7 +652,7 @@ def test_refinement_runs_count_as_nets_not_as_settings() -> None:
     refined = [t for t in data.scored if t.refined_from is not None]
     assert [(t.number, t.refined_from) for t in refined] == [(12, best.number)]
     assert 12 not in {t.number for t in data.settings_scored} and len(data.settings_scored) == len(data.scored) - 1
-    assert max(t.value for t in data.scored) == best.value + 1.0  # the best single net counts it
+    assert max(t.value or 0.0 for t in data.scored) == best.value + 1.0  # the best single net counts it
     assert 12 not in {t.number for t in extract.configurations(data)}
     panel = extract.hyperparameter_panels(data)["gamma"]
     assert isinstance(panel, extract.Panel) and len(panel.points.x) == len(data.settings_scored)

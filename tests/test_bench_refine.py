@@ -33,7 +33,8 @@ def test_the_climb_keeps_the_best_net_and_scores_it_on_held_out_runs(tmp_path: P
     assert result["heldout_seeds"] == [br.HELDOUT_SEED]
     base = TrainConfig.from_mapping({"layers": "fc:4:relu", "learning_rate": 0.01, "learning_steps_burnin": 3000})
     own = br.child_config(base, br.parse_args(["--own-schedule", "--iterations", "5000"]))
-    assert own.learning_steps_burnin == 3000 and own.train_iterations == 5000 and own.learning_rate == pytest.approx(1e-3)
+    assert own.learning_steps_burnin == 3000 and own.train_iterations == 5000
+    assert own.learning_rate == pytest.approx(1e-3)
     short = br.child_config(base, br.parse_args([]))
     assert short.learning_steps_total == 1000 and short.learning_steps_burnin == 100
 

@@ -48,14 +48,17 @@ def test_a_refinement_config_is_its_parents_with_a_short_schedule_and_a_smaller_
 def test_the_parent_is_the_best_single_net_refinement_runs_included() -> None:
     rung: dict[str, Any] = {keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 74.8}],
             keys.ARTIFACT_RUNG_NETS: {"400": "id"}}  # fmt: skip
+    net = {keys.ARTIFACT_NET_JSON: "id"}
     assert refine.best_parent([]) is None
-    assert refine.best_parent([(0, {}, 74.0, True), (1, rung, None, False)]) == refine.Parent(1, 400, 74.8)
-    refined: dict[str, Any] = {keys.REFINE_OF: {"trial": 1, "budget": 400, "score": 74.8}}
+    assert refine.best_parent([(0, net, 74.0, True), (1, rung, None, False)]) == refine.Parent(1, 400, 74.8)
+    refined: dict[str, Any] = {keys.REFINE_OF: {"trial": 1, "budget": 400, "score": 74.8}, **net}
     trials: list[tuple[int, dict[str, Any], float | None, bool]] = [
-        (0, {}, 74.0, True), (1, rung, None, False), (2, refined, 75.1, True),
+        (0, net, 74.0, True), (1, rung, None, False), (2, refined, 75.1, True),
     ]  # fmt: skip
     assert refine.best_parent(trials) == refine.Parent(2, None, 75.1)
-    assert refine.best_parent([(0, {}, 74.0, False)]) is None  # a value only counts when COMPLETE
+    assert refine.best_parent([(0, net, 74.0, False)]) is None  # a value only counts when COMPLETE
+    copied = {keys.COPIED_FROM: "other:3"}  # another study's history: no net stored here
+    assert refine.best_parent([(0, net, 74.0, True), (1, copied, 76.0, True)]) == refine.Parent(0, None, 74.0)
     parent = refine.Parent(1, 400, 74.8)
     assert refine.Parent.from_attr(parent.to_attr()) == parent
 
@@ -193,11 +196,15 @@ def test_a_refined_best_net_names_its_lineage_and_a_missing_parent_net_is_one_li
     assert net["lineage"] == [{"trial": 1, "budget": None, "score": 74.6}, refined]
     assert lineage(record, 0) == []
     driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
-    assert driver._launch_refine(0)  # noqa: SLF001 - trial 2 stores no net: the run fails, saying so
+    assert not driver._launch_refine(0)  # noqa: SLF001 - no trial stores its net: nothing to train on from
+    study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=75.3, state=COMPLETE,
+                                              user_attrs={keys.CONFIG: TINY.to_mapping(),
+                                                          keys.ARTIFACT_NET_JSON: "gone"}))  # fmt: skip
+    assert driver._launch_refine(0)  # noqa: SLF001 - its net is not in the artifact store: the run fails, saying so
     run = study.trials[-1]
     assert run.state == optuna.trial.TrialState.FAIL and not driver.pool.tasks
-    assert run.user_attrs[keys.CAUSE] == "refinement: trial 2: no trained network stored (user attr " \
-                                         "artifact_net_json missing)"  # fmt: skip
+    assert run.user_attrs[keys.CAUSE].startswith("refinement: trial 3: artifact user attr artifact_net_json=gone "
+                                                 "not found in ")  # fmt: skip
     with pytest.raises(RecordError, match="trial 0: no trained network stored"):
         from autotune.search.records import parent_net
 

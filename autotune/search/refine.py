@@ -71,11 +71,14 @@ class Parent:
 
 
 def best_parent(trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]]) -> Parent | None:
-    """The best single net of ``trials`` (number, user attrs, value, COMPLETE?): ``records.best_net``'s choice over
-    ``scored_nets``, refinement runs included; None before any net is scored."""
+    """The best stored net of ``trials`` (number, user attrs, value, COMPLETE?): ``records.best_net``'s choice over
+    ``scored_nets``, refinement runs included, among the nets the study stores (a trial's value needs its
+    ``artifact_net_json``: history copied from another study has none); None before any."""
     best: tuple[tuple[float, int, int], Parent] | None = None
     for number, attrs, value, complete in trials:
         for score, budget in scored_nets(attrs, value, complete):
+            if budget is None and not attrs.get(keys.ARTIFACT_NET_JSON):
+                continue
             rank = net_rank(score, budget, number)
             if best is None or rank > best[0]:
                 best = (rank, Parent(number, budget, score))

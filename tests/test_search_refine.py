@@ -23,7 +23,7 @@ from autotune.search.driver import Driver, StudyCounts, trial_seed
 from autotune.search.history import DrawsView
 from autotune.search.ladder import trained_rung_config
 from autotune.search.records import RecordError, best_net, lineage, read_study
-from autotune.search.spec import REFINE_ITERATIONS, REFINE_LEARNING_RATE, SpecError
+from autotune.search.spec import REFINE_ITERATIONS, REFINE_LEARNING_RATE, REFINE_RUNS, SpecError
 from tests.conftest import FakePool
 from tests.test_search_ladder import TINY, _driver_on_journal, _spec
 
@@ -87,6 +87,18 @@ def test_refine_keys_are_checked() -> None:
         _spec(refine_share=0.5, refine_iterations=10)
     with pytest.raises(SpecError, match=r"refine_shares.*did you mean 'refine_share'"):
         _spec(refine_shares=0.5)
+    assert st.refine_runs == REFINE_RUNS and _spec(refine_share=0.5, refine_runs=0).study.refine_runs == 0
+    with pytest.raises(SpecError, match=r"\[study\] refine_runs: -1 is out of range"):
+        _spec(refine_share=0.5, refine_runs=-1)
+    with pytest.raises(SpecError, match=r"\[study\] refine_runs: .*refine_share = 0"):
+        _spec(refine_runs=8)
+
+
+def test_runs_from_counts_one_nets_runs() -> None:
+    parent = refine.Parent(4, 90_000, 75.0)
+    ofs = [None, {"trial": 4, "budget": 90_000, "score": 75.0}, {"trial": 4, "budget": None, "score": 74.0},
+           {"trial": 4, "budget": 90_000, "score": 75.0}, {"trial": 7, "budget": 90_000, "score": 75.0}]  # fmt: skip
+    assert refine.runs_from(ofs, parent) == 2 and refine.runs_from([], parent) == 0
 
 
 def _net_text(seed: int) -> str:
@@ -155,6 +167,10 @@ def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: P
     assert run.user_attrs[keys.CONFIG] == expected.to_mapping() and expected.epsilon_test_time == 0.02
     assert driver.pool.tasks[-1].init_net == texts[2]
     study.tell(driver._running.pop(0).trial, 75.0)  # noqa: SLF001
+    bounded = Driver(dataclasses.replace(spec, study=dataclasses.replace(spec.study, refine_runs=1)), storages)
+    bounded.open_study()
+    bounded._t0, bounded.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert not bounded._launch_refine(0)  # noqa: SLF001 - the kept rung had its one run: back to the search
     # no budget used, never shown to the sampler, never a race entrant
     driver._refresh_counts()  # noqa: SLF001
     refined = [t for t in study.trials if keys.REFINE_OF in t.user_attrs]

@@ -778,7 +778,8 @@ class Driver:
         """Start a refinement run of the study's best single net on ``slot`` (``autotune.search.refine``); False when
         none starts: ``refine_share`` is 0, its share of the workers (at least one, never all) is busy with such
         runs, the seed race is running its rounds, the queue (crowd settings, retries) or the trial budget comes
-        first, no net is scored yet, or one run (× ``RACE_MARGIN``) would not fit the time left.
+        first, no net is stored yet, the best one had its ``refine_runs``, or one run (× ``RACE_MARGIN``) would not
+        fit the time left.
 
         The parent is chosen when the run starts, over every net stored by then, refinement runs included: a run
         that beat its parent is the next one's (the runs climb). Its seed is the study's refinement seed number k,
@@ -801,6 +802,9 @@ class Driver:
         )  # fmt: skip
         if parent is None:
             return False
+        refine_ofs = [t.user_attrs.get(keys.REFINE_OF) if keys.RETRY_OF not in t.user_attrs else None for t in trials]
+        if st.refine_runs and refine.runs_from(refine_ofs, parent) >= st.refine_runs:
+            return False  # it had its runs: the worker goes back to the search until a better net is stored
         source = trials[parent.trial]
         top = TrainConfig.from_mapping(source.user_attrs[keys.CONFIG])
         rungs = source.user_attrs.get(keys.RUNGS)
@@ -808,7 +812,7 @@ class Driver:
         config = refine.refine_config(trained, st.refine_iterations, st.refine_learning_rate).to_mapping()
         if self._race_cost(config) * RACE_MARGIN > self._time_left():
             return False
-        index = sum(1 for t in trials if keys.REFINE_OF in t.user_attrs and keys.RETRY_OF not in t.user_attrs)
+        index = sum(1 for r in refine_ofs if r is not None)
         self.study.enqueue_trial(dict(source.params), user_attrs={
             keys.CONFIG: config, keys.SEED: refine.refine_seed(st.seed, index), keys.REFINE_OF: parent.to_attr(),
         })  # fmt: skip

@@ -5,7 +5,8 @@ Five tables, every key optional unless said otherwise::
     [study]       name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
-                  intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate
+                  intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
+                  refine_runs
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -92,6 +93,10 @@ about 10 s each on one core (training and the official score), and their best of
 mph (``autotune.search.refine``)."""
 REFINE_LEARNING_RATE = 0.1
 """Default ``[study] refine_learning_rate``: a tenth of the best net's own rate (``autotune.search.refine``)."""
+REFINE_RUNS = 32
+"""Default ``[study] refine_runs``: measured outside a study, the climbs from gsurma's setting passed their parent
+within 8–32 runs or not at all (``bench/refine.py``); in a crowd-prior study 116 runs of one net found nothing
+above it."""
 BALANCE_MIN_SHARE = 0.2
 BALANCEABLE_SAMPLERS = ("tpe", "random")
 """Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
@@ -239,6 +244,9 @@ class StudySection:
     exploring at its ε_min after ``refine.EXPLORE_DECISIONS`` decisions."""
     refine_learning_rate: float = REFINE_LEARNING_RATE
     """A refinement run's learning rate as a multiple of the best net's own (sgd, adagrad; adadelta has none)."""
+    refine_runs: int = REFINE_RUNS
+    """The most refinement runs one net gets (0: no bound, while it is the best); then its worker goes back to the
+    search until a better net is stored."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -664,7 +672,9 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if refine_lr <= 0.0:
         raise where.error("refine_learning_rate", f"must be above 0, got {refine_lr}",
                           "e.g. refine_learning_rate = 0.1 (a tenth of the best net's own)")  # fmt: skip
-    for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr)):
+    refine_runs = _int(table.get("refine_runs", d.refine_runs), f"{src}: [study] refine_runs", 0, 1_000_000)
+    for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr),
+                       ("refine_runs", refine_runs)):  # fmt: skip
         if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
@@ -672,7 +682,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
-        intensify_runs, refine, refine_iterations, refine_lr,
+        intensify_runs, refine, refine_iterations, refine_lr, refine_runs,
     )  # fmt: skip
 
 

@@ -738,13 +738,7 @@ class Driver:
         share = st.intensify_share
         if share <= 0.0 or not self.spec.ladder or self._race_over or self._race_window():
             return False  # before the race only: once it is over the time left is the search's
-        workers = self.spec.resources.workers
-        if sum(r.incumbent for r in self._running.values()) >= min(max(1, int(share * workers)), workers - 1):
-            return False  # at least one worker, never all: the search always goes on
-        if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
-            return False
-        self._refresh_counts()
-        if st.n_trials is not None and self.counts.started >= st.n_trials:
+        if not self._side_slot_free(share, sum(r.incumbent for r in self._running.values())):
             return False
         trials = self.study.get_trials(deepcopy=False)
         results, launched = self._race_results()
@@ -774,6 +768,20 @@ class Driver:
         })  # fmt: skip
         return self._launch_next(slot)
 
+    def _side_slot_free(self, share: float, busy: int) -> bool:
+        """Whether a worker may start one more run of a side task (incumbent, refinement) that ``busy`` workers run
+        now: under ``share`` of the workers (at least one, never all: the search always goes on), nothing waiting in
+        the queue (crowd settings, retries come first), and the trial budget not spent."""
+        assert self.study is not None
+        workers = self.spec.resources.workers
+        if busy >= min(max(1, int(share * workers)), workers - 1):
+            return False
+        if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+            return False
+        self._refresh_counts()
+        budget = self.spec.study.n_trials
+        return budget is None or self.counts.started < budget
+
     def _launch_refine(self, slot: int) -> bool:
         """Start a refinement run of the study's best single net on ``slot`` (``autotune.search.refine``); False when
         none starts: ``refine_share`` is 0, its share of the workers (at least one, never all) is busy with such
@@ -788,13 +796,7 @@ class Driver:
         st = self.spec.study
         if st.refine_share <= 0.0 or (self._race_window() and not self._race_over):
             return False
-        workers = self.spec.resources.workers
-        if sum(r.refine for r in self._running.values()) >= min(max(1, int(st.refine_share * workers)), workers - 1):
-            return False  # at least one worker, never all: the search always goes on
-        if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
-            return False
-        self._refresh_counts()
-        if st.n_trials is not None and self.counts.started >= st.n_trials:
+        if not self._side_slot_free(st.refine_share, sum(r.refine for r in self._running.values())):
             return False
         trials = self.study.get_trials(deepcopy=False)
         parent = refine.best_parent(

@@ -89,10 +89,8 @@ def heldout(job: tuple[dict[str, Any], str, int]) -> float:
 
 
 class _InProcess:
-    """``Pool``'s ``map`` in this process (one worker: no child to start, nothing to pickle)."""
-
-    def __init__(self) -> None:
-        _setup()
+    """``Pool``'s ``map`` in this process (one worker: no child to start, nothing to pickle); the process's settings
+    are left as they are (``train`` sets one thread and denormal flushing for its own call only)."""
 
     def map(self, fn: Any, jobs: Sequence[Any]) -> list[Any]:
         return [fn(job) for job in jobs]

@@ -318,7 +318,8 @@ def test_best_single_net_may_be_a_kept_rung(journal_study, capsys, tmp_path):
     study.add_trial(create_trial(state=TrialState.PRUNED, user_attrs=attrs, intermediate_values={1: 71.0, 3: 72.0}))
     found = best_net(read_study(storages, name))
     assert found == {"trial": 4, "budget": 3000, "score": VALUES[1] + 1.5, "state": "PRUNED", "seed": 77,
-                     "official_protocol": "v2-official", "epsilon_test_time": top.epsilon_test_time}  # fmt: skip
+                     "official_protocol": "v2-official", "epsilon_test_time": top.epsilon_test_time,
+                     "lineage": []}  # fmt: skip
 
     out_dir = tmp_path / "export"
     code, out, err = run_cli(capsys, "best", name, "--storage", storage, "--export", str(out_dir), "--json")

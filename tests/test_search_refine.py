@@ -63,6 +63,24 @@ def test_the_parent_is_the_best_single_net_refinement_runs_included() -> None:
     assert refine.Parent.from_attr(parent.to_attr()) == parent
 
 
+def test_once_the_best_net_had_its_runs_the_next_best_near_it_is_the_parent() -> None:
+    def net(score: float) -> tuple[dict[str, Any], float, bool]:
+        return {keys.ARTIFACT_NET_JSON: "id"}, score, True
+
+    trials = [(i, *net(score)) for i, score in enumerate((74.0, 75.2, 74.9, 74.6, 75.2))]
+    ranked = refine.ranked_parents(trials)
+    assert [p.trial for p in ranked] == [1, 4, 2, 3, 0]  # ties: the earlier trial first
+    of = [{"trial": 1, "budget": None, "score": 75.2}] * 2 + [None]
+    assert refine.choose_parent(trials, [], 2) == refine.Parent(1, None, 75.2)
+    assert refine.choose_parent(trials, of, 2) == refine.Parent(4, None, 75.2)
+    assert refine.choose_parent(trials, of, 0) == refine.Parent(1, None, 75.2)  # no bound: always the best
+    assert refine.choose_parent(trials, of, 3) == refine.Parent(1, None, 75.2)
+    spent = of + [{"trial": 4, "budget": None, "score": 75.2}] * 2 + [{"trial": 2, "budget": None, "score": 74.9}] * 2
+    assert refine.choose_parent(trials, spent, 2) is None  # 74.6 is more than PARENT_SPAN below the best
+    assert 75.2 - 74.6 > refine.PARENT_SPAN >= 75.2 - 74.9
+    assert refine.choose_parent([], [], 2) is None
+
+
 def test_refinement_seeds_are_their_own() -> None:
     seeds = [refine.refine_seed(0, i) for i in range(50)]
     assert len(set(seeds)) == 50 and seeds == [refine.refine_seed(0, i) for i in range(50)]
@@ -92,6 +110,11 @@ def test_refine_keys_are_checked() -> None:
         _spec(refine_share=0.5, refine_runs=-1)
     with pytest.raises(SpecError, match=r"\[study\] refine_runs: .*refine_share = 0"):
         _spec(refine_runs=8)
+    assert st.refine_start == 0.0 and _spec(refine_share=0.5, refine_start=0.25).study.refine_start == 0.25
+    with pytest.raises(SpecError, match=r"\[study\] refine_start: 1 is out of range; use \[0, 0.99\]"):
+        _spec(refine_share=0.5, refine_start=1)
+    with pytest.raises(SpecError, match=r"\[study\] refine_start: .*refine_share = 0"):
+        _spec(refine_start=0.25)
 
 
 def test_runs_from_counts_one_nets_runs() -> None:
@@ -170,7 +193,20 @@ def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: P
     bounded = Driver(dataclasses.replace(spec, study=dataclasses.replace(spec.study, refine_runs=1)), storages)
     bounded.open_study()
     bounded._t0, bounded.pool = time.perf_counter(), FakePool()  # noqa: SLF001
-    assert not bounded._launch_refine(0)  # noqa: SLF001 - the kept rung had its one run: back to the search
+    assert not bounded._launch_refine(0)  # noqa: SLF001 - the nets within PARENT_SPAN had their run: the search
+    # the search's share of the budget first: of the time, else of the trials
+    late = Driver(dataclasses.replace(spec, study=dataclasses.replace(spec.study, refine_start=0.25)), storages)
+    late.open_study()
+    late._t0, late.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert not late._launch_refine(0)  # noqa: SLF001
+    late._t0 -= 0.25 * 3600  # noqa: SLF001
+    assert late._refine_open()  # noqa: SLF001
+    untimed = dataclasses.replace(spec.study, refine_start=0.25, timeout_s=None, n_trials=12)
+    late = Driver(dataclasses.replace(spec, study=untimed), storages)
+    late.open_study()
+    assert late.counts.started == 3 and late._refine_open()  # noqa: SLF001 - 3 of the 12 trials started
+    late.spec = dataclasses.replace(spec, study=dataclasses.replace(untimed, n_trials=13))
+    assert not late._refine_open()  # noqa: SLF001
     # no budget used, never shown to the sampler, never a race entrant
     driver._refresh_counts()  # noqa: SLF001
     refined = [t for t in study.trials if keys.REFINE_OF in t.user_attrs]

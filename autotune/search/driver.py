@@ -786,11 +786,12 @@ class Driver:
         """Start a refinement run of the study's best single net on ``slot`` (``autotune.search.refine``); False when
         none starts: ``refine_share`` is 0, its share of the workers (at least one, never all) is busy with such
         runs, the seed race is running its rounds, the queue (crowd settings, retries) or the trial budget comes
-        first, no net is stored yet, the best one had its ``refine_runs``, or one run (× ``RACE_MARGIN``) would not
-        fit the time left.
+        first, the search has not had its ``refine_start`` yet, no net is stored yet, the nets near the best had
+        their ``refine_runs``, or one run (× ``RACE_MARGIN``) would not fit the time left.
 
-        The parent is chosen when the run starts, over every net stored by then, refinement runs included: a run
-        that beat its parent is the next one's (the runs climb). Its seed is the study's refinement seed number k,
+        The parent is chosen when the run starts, over every net stored by then, refinement runs included
+        (``refine.choose_parent``): a run that beat its parent is the next one's (the runs climb); once the best
+        had its runs, the next best within ``refine.PARENT_SPAN`` mph has them. Its seed is the study's refinement seed number k,
         k = the refinement runs started before it."""
         assert self.study is not None
         st = self.spec.study
@@ -798,15 +799,16 @@ class Driver:
             return False
         if not self._side_slot_free(st.refine_share, sum(r.refine for r in self._running.values())):
             return False
+        if not self._refine_open():
+            return False
         trials = self.study.get_trials(deepcopy=False)
-        parent = refine.best_parent(
-            (t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials
+        refine_ofs = [t.user_attrs.get(keys.REFINE_OF) if keys.RETRY_OF not in t.user_attrs else None for t in trials]
+        parent = refine.choose_parent(
+            ((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials), refine_ofs,
+            st.refine_runs,
         )  # fmt: skip
         if parent is None:
-            return False
-        refine_ofs = [t.user_attrs.get(keys.REFINE_OF) if keys.RETRY_OF not in t.user_attrs else None for t in trials]
-        if st.refine_runs and refine.runs_from(refine_ofs, parent) >= st.refine_runs:
-            return False  # it had its runs: the worker goes back to the search until a better net is stored
+            return False  # no net yet, or the nets near the best had their runs: the worker goes back to the search
         source = trials[parent.trial]
         top = TrainConfig.from_mapping(source.user_attrs[keys.CONFIG])
         rungs = source.user_attrs.get(keys.RUNGS)
@@ -819,6 +821,19 @@ class Driver:
             keys.CONFIG: config, keys.SEED: refine.refine_seed(st.seed, index), keys.REFINE_OF: parent.to_attr(),
         })  # fmt: skip
         return self._launch_next(slot)
+
+    def _refine_open(self) -> bool:
+        """Whether the search has had its ``refine_start`` share of the study's budget: of ``timeout_s`` (this run's
+        time), else of ``n_trials`` (trials started), else none to wait for."""
+        st = self.spec.study
+        if st.refine_start <= 0.0:
+            return True
+        if st.timeout_s is not None:
+            return time.perf_counter() - self._t0 >= st.refine_start * st.timeout_s
+        if st.n_trials is not None:
+            self._refresh_counts()
+            return self.counts.started >= st.refine_start * st.n_trials
+        return True
 
     def _parent_net(self, parent: refine.Parent) -> str:
         """The convnetjs Net JSON of ``parent`` (a trial's net, or its kept rung's) from the artifact store."""

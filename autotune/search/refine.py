@@ -33,6 +33,7 @@ the trial budget; its net reproduces from its parent's net, its config and its s
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -42,8 +43,8 @@ from autotune.search.records import net_rank, scored_nets
 from autotune.search.seeds import derived_seed
 
 __all__ = [
-    "BURNIN", "EXPLORE_DECISIONS", "START_LEARN", "REFINE_SALT", "Parent", "best_parent", "refine_config",
-    "refine_seed", "runs_from", "is_refinement",
+    "BURNIN", "EXPLORE_DECISIONS", "START_LEARN", "PARENT_SPAN", "REFINE_SALT", "Parent", "ranked_parents",
+    "best_parent", "choose_parent", "refine_config", "refine_seed", "runs_from", "is_refinement",
 ]  # fmt: skip
 
 EXPLORE_DECISIONS = 1_000
@@ -52,6 +53,9 @@ BURNIN = 100
 """``learning_steps_burnin`` of a refinement run (at most the config's own)."""
 START_LEARN = 500
 """``start_learn_threshold`` of a refinement run (at most the config's own)."""
+PARENT_SPAN = 0.5
+"""mph below the study's best net within which a net that had fewer runs is the next parent once the better ones
+had their ``[study] refine_runs``: other lineages climb where the best one stalled."""
 REFINE_SALT = 0x2EF1_4E
 """Mixed into a refinement run's seed so it never coincides with a trial's, a rung's or a race run's."""
 
@@ -74,19 +78,46 @@ class Parent:
         return cls(int(attr["trial"]), None if budget is None else int(budget), float(attr["score"]))
 
 
-def best_parent(trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]]) -> Parent | None:
-    """The best stored net of ``trials`` (number, user attrs, value, COMPLETE?): ``records.best_net``'s choice over
-    ``scored_nets``, refinement runs included, among the nets the study stores (a trial's value needs its
-    ``artifact_net_json``: history copied from another study has none); None before any."""
-    best: tuple[tuple[float, int, int], Parent] | None = None
+def ranked_parents(trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]]) -> list[Parent]:
+    """The stored nets of ``trials`` (number, user attrs, value, COMPLETE?), best first by ``records.net_rank``:
+    ``scored_nets`` (kept rungs too), refinement runs included, among the nets the study stores (a trial's value
+    needs its ``artifact_net_json``: history copied from another study has none)."""
+    ranked: list[tuple[tuple[float, int, int], Parent]] = []
     for number, attrs, value, complete in trials:
         for score, budget in scored_nets(attrs, value, complete):
             if budget is None and not attrs.get(keys.ARTIFACT_NET_JSON):
                 continue
-            rank = net_rank(score, budget, number)
-            if best is None or rank > best[0]:
-                best = (rank, Parent(number, budget, score))
-    return None if best is None else best[1]
+            ranked.append((net_rank(score, budget, number), Parent(number, budget, score)))
+    ranked.sort(key=lambda r: r[0], reverse=True)
+    return [p for _, p in ranked]
+
+
+def best_parent(trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]]) -> Parent | None:
+    """The best stored net of ``trials`` (``ranked_parents``' first); None before any."""
+    ranked = ranked_parents(trials)
+    return ranked[0] if ranked else None
+
+
+def choose_parent(
+    trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]],
+    refine_ofs: Iterable[Mapping[str, Any] | None],
+    max_runs: int,
+) -> Parent | None:
+    """The net the next refinement run trains on from: the best stored net that had fewer than ``max_runs`` runs
+    (``refine_ofs`` as in ``runs_from``; 0: no bound) among those within ``PARENT_SPAN`` mph of the best; None when
+    there is none (no net yet, or every such net had its runs: the worker goes back to the search)."""
+    ranked = ranked_parents(trials)
+    if not ranked:
+        return None
+    if not max_runs:
+        return ranked[0]
+    counts = Counter((r.get("trial"), r.get("budget")) for r in refine_ofs if r is not None)
+    for parent in ranked:
+        if parent.score < ranked[0].score - PARENT_SPAN:
+            return None
+        if counts[(parent.trial, parent.budget)] < max_runs:
+            return parent
+    return None
 
 
 def runs_from(refine_ofs: Iterable[Mapping[str, Any] | None], parent: Parent) -> int:

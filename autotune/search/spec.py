@@ -6,7 +6,7 @@ Five tables, every key optional unless said otherwise::
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
-                  refine_runs
+                  refine_runs, refine_start
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -245,8 +245,11 @@ class StudySection:
     refine_learning_rate: float = REFINE_LEARNING_RATE
     """A refinement run's learning rate as a multiple of the best net's own (sgd, adagrad; adadelta has none)."""
     refine_runs: int = REFINE_RUNS
-    """The most refinement runs one net gets (0: no bound, while it is the best); then its worker goes back to the
-    search until a better net is stored."""
+    """The most refinement runs one net gets (0: no bound, while it is the best); then its worker trains on from the
+    next best net within ``refine.PARENT_SPAN`` mph of the best, or goes back to the search."""
+    refine_start: float = 0.0
+    """Share of the study's budget — its time (``timeout_s``), else its trials (``n_trials``) — the search has to
+    itself before refinement starts (0: from the first stored net)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -673,8 +676,9 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         raise where.error("refine_learning_rate", f"must be above 0, got {refine_lr}",
                           "e.g. refine_learning_rate = 0.1 (a tenth of the best net's own)")  # fmt: skip
     refine_runs = _int(table.get("refine_runs", d.refine_runs), f"{src}: [study] refine_runs", 0, 1_000_000)
+    refine_start = _float(table.get("refine_start", d.refine_start), f"{src}: [study] refine_start", 0.0, 0.99)
     for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr),
-                       ("refine_runs", refine_runs)):  # fmt: skip
+                       ("refine_runs", refine_runs), ("refine_start", refine_start)):  # fmt: skip
         if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
@@ -682,7 +686,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
-        intensify_runs, refine, refine_iterations, refine_lr, refine_runs,
+        intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start,
     )  # fmt: skip
 
 

@@ -791,8 +791,8 @@ class Driver:
 
         The parent is chosen when the run starts, over every net stored by then, refinement runs included
         (``refine.choose_parent``): a run that beat its parent is the next one's (the runs climb); once the best
-        had its runs, the next best within ``refine.PARENT_SPAN`` mph has them. Its seed is the study's refinement seed number k,
-        k = the refinement runs started before it."""
+        had its runs, the next best within ``refine.PARENT_SPAN`` mph has them. Its seed is the study's refinement
+        seed number k, k = the refinement runs started before it."""
         assert self.study is not None
         st = self.spec.study
         if st.refine_share <= 0.0 or (self._race_window() and not self._race_over):

@@ -79,6 +79,14 @@ def test_once_the_best_net_had_its_runs_the_next_best_near_it_is_the_parent() ->
     assert refine.choose_parent(trials, spent, 2) is None  # 74.6 is more than PARENT_SPAN below the best
     assert 75.2 - 74.6 > refine.PARENT_SPAN >= 75.2 - 74.9
     assert refine.choose_parent([], [], 2) is None
+    # a COMPLETE ladder trial's top rung is the net of its value: one parent
+    ladder = {keys.ARTIFACT_NET_JSON: "id", keys.OFFICIAL_PROTOCOL: "v2-official",
+              keys.RUNGS: [{keys.BUDGET: 100, keys.SCORE: 74.5}, {keys.BUDGET: 300, keys.SCORE: 75.0}],
+              keys.ARTIFACT_RUNG_NETS: {"100": "a", "300": "b"}}  # fmt: skip
+    assert refine.ranked_parents([(0, ladder, 75.0, True)]) == [refine.Parent(0, None, 75.0),
+                                                               refine.Parent(0, 100, 74.5)]  # fmt: skip
+    assert refine.ranked_parents([(0, ladder, None, False)]) == [refine.Parent(0, 300, 75.0),
+                                                                refine.Parent(0, 100, 74.5)]  # fmt: skip
 
 
 def test_refinement_seeds_are_their_own() -> None:
@@ -178,6 +186,8 @@ def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: P
     nxt = study.trials[-1]
     assert nxt.user_attrs[keys.REFINE_OF] == {"trial": 2, "budget": None, "score": 74.6}
     assert nxt.user_attrs[keys.SEED] == refine.refine_seed(spec.study.seed, 1)
+    # at its parent's rate, already a tenth of the fresh training's: not a hundredth
+    assert nxt.user_attrs[keys.CONFIG] == refine.refine_config(chosen, 3000, 0.1).to_mapping()
     assert driver.pool.tasks[-1].init_net == texts[1]
     study.tell(driver._running.pop(0).trial, 73.9)  # noqa: SLF001 - worse: the parent stays
     # a kept rung that beats every value is the next parent, at the settings that rung trained with

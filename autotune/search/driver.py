@@ -813,7 +813,10 @@ class Driver:
         top = TrainConfig.from_mapping(source.user_attrs[keys.CONFIG])
         rungs = source.user_attrs.get(keys.RUNGS)
         trained = top if parent.budget is None else trained_rung_config(top, parent.budget, rungs)
-        config = refine.refine_config(trained, st.refine_iterations, st.refine_learning_rate).to_mapping()
+        # a refinement run's config already has the scaled rate: its children keep it (× 0.1 a generation froze
+        # the climbs of a cold study: 1.9e-9 → 1.9e-11 in two steps)
+        rate = 1.0 if refine.is_refinement(source.user_attrs) else st.refine_learning_rate
+        config = refine.refine_config(trained, st.refine_iterations, rate).to_mapping()
         if self._race_cost(config) * RACE_MARGIN > self._time_left():
             return False
         index = sum(1 for r in refine_ofs if r is not None)

@@ -243,7 +243,8 @@ class StudySection:
     """Length [iterations] of one refinement run: a training on from the best net's weights at its own settings,
     exploring at its ε_min after ``refine.EXPLORE_DECISIONS`` decisions."""
     refine_learning_rate: float = REFINE_LEARNING_RATE
-    """A refinement run's learning rate as a multiple of the best net's own (sgd, adagrad; adadelta has none)."""
+    """A refinement run's learning rate as a multiple of the rate its lineage's fresh training used (sgd, adagrad;
+    adadelta has none): a run refined from a refinement run keeps its parent's rate."""
     refine_runs: int = REFINE_RUNS
     """The most refinement runs one net gets (0: no bound, while it is the best); then its worker trains on from the
     next best net within ``refine.PARENT_SPAN`` mph of the best, or goes back to the search."""

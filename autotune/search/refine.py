@@ -93,9 +93,8 @@ def ranked_parents(trials: Iterable[tuple[int, Mapping[str, Any], float | None, 
         for score, budget in nets:
             if budget is None and not attrs.get(keys.ARTIFACT_NET_JSON):
                 continue
-            if budget is not None and budget == max(rungs) and (score, None) in nets and attrs.get(
-                keys.ARTIFACT_NET_JSON
-            ):
+            top = budget is not None and budget == max(rungs) and attrs.get(keys.ARTIFACT_NET_JSON)
+            if top and (score, None) in nets:
                 continue  # a COMPLETE trial's top rung is the net of its value: one parent, not two
             ranked.append((net_rank(score, budget, number), Parent(number, budget, score)))
     ranked.sort(key=lambda r: r[0], reverse=True)

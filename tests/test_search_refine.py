@@ -79,6 +79,11 @@ def test_once_the_best_net_had_its_runs_the_next_best_near_it_is_the_parent() ->
     assert refine.choose_parent(trials, spent, 2) is None  # 74.6 is more than PARENT_SPAN below the best
     assert 75.2 - 74.6 > refine.PARENT_SPAN >= 75.2 - 74.9
     assert refine.choose_parent([], [], 2) is None
+    # a refinement run is a parent only when it beat its own: else that parent is the better start
+    worse = {keys.ARTIFACT_NET_JSON: "id", keys.REFINE_OF: {"trial": 1, "budget": None, "score": 75.2}}
+    better = {keys.ARTIFACT_NET_JSON: "id", keys.REFINE_OF: {"trial": 2, "budget": None, "score": 74.9}}
+    climbed = refine.ranked_parents([*trials, (5, worse, 75.1, True), (6, better, 75.0, True), (7, worse, None, False)])
+    assert [p.trial for p in climbed] == [1, 4, 6, 2, 3, 0]
     # a COMPLETE ladder trial's top rung is the net of its value: one parent
     ladder = {keys.ARTIFACT_NET_JSON: "id", keys.OFFICIAL_PROTOCOL: "v2-official",
               keys.RUNGS: [{keys.BUDGET: 100, keys.SCORE: 74.5}, {keys.BUDGET: 300, keys.SCORE: 75.0}],

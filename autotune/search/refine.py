@@ -25,7 +25,8 @@ the runs climb (a (1 + λ) search whose mutation is deepqlearn training). A net 
 refine_runs`` runs (``runs_from``): in a crowd-prior study the first runs from gsurma's 74.95 net gave 75.22
 within a minute, and the next 208 runs from that one found +0.01 (median 74.9): the climb stalls where the runs'
 spread around their parent no longer reaches above it. Then the next best net within ``PARENT_SPAN`` mph of the
-best has its runs (another lineage may climb where that one stalled), and once those had theirs too the worker
+best has its runs (another lineage may climb where that one stalled; a run that did not beat its own parent is
+never one), and once those had theirs too the worker
 goes back to the search. Refinement starts after the search's ``[study] refine_start`` share of the study's
 budget: from minute 0, a cold study refined weak nets on half its workers while the search had found no good one.
 Each run is an ordinary trial (``refine_of``: its parent's trial and rung), never shown to the sampler, never a
@@ -85,9 +86,14 @@ def ranked_parents(trials: Iterable[tuple[int, Mapping[str, Any], float | None, 
     """The stored nets of ``trials`` (number, user attrs, value, COMPLETE?), best first by ``records.net_rank``:
     ``scored_nets`` (kept rungs too), refinement runs included, among the nets the study stores (a trial's value
     needs its ``artifact_net_json``: history copied from another study has none), each once (a COMPLETE trial's
-    top rung is its value's net: a cold study's refinement gave one net's two entries 32 runs each)."""
+    top rung is its value's net: a cold study's refinement gave one net's two entries 32 runs each), and of the
+    refinement runs only those that beat their parent."""
     ranked: list[tuple[tuple[float, int, int], Parent]] = []
     for number, attrs, value, complete in trials:
+        origin = attrs.get(keys.REFINE_OF)
+        if origin is not None and (value is None or value <= float(origin["score"])):
+            continue  # a run that did not beat its parent: that parent is the better start (a cold study gave four
+            # such children of one net 32 runs each, none above it)
         nets = scored_nets(attrs, value, complete)
         rungs = [budget for _, budget in nets if budget is not None]
         for score, budget in nets:

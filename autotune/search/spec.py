@@ -247,7 +247,8 @@ class StudySection:
     adadelta has none): a run refined from a refinement run keeps its parent's rate."""
     refine_runs: int = REFINE_RUNS
     """The most refinement runs one net gets (0: no bound, while it is the best); then its worker trains on from the
-    next best net within ``refine.PARENT_SPAN`` mph of the best, or goes back to the search."""
+    next best net within ``refine.PARENT_SPAN`` mph of the best (a refinement run only if it beat its parent), or goes
+    back to the search."""
     refine_start: float = 0.0
     """Share of the study's budget — its time (``timeout_s``), else its trials (``n_trials``) — the search has to
     itself before refinement starts (0: from the first stored net)."""

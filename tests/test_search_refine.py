@@ -49,16 +49,16 @@ def test_the_parent_is_the_best_single_net_refinement_runs_included() -> None:
     rung: dict[str, Any] = {keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 74.8}],
             keys.ARTIFACT_RUNG_NETS: {"400": "id"}}  # fmt: skip
     net = {keys.ARTIFACT_NET_JSON: "id"}
-    assert refine.best_parent([]) is None
-    assert refine.best_parent([(0, net, 74.0, True), (1, rung, None, False)]) == refine.Parent(1, 400, 74.8)
+    assert refine.choose_parent([], [], 0) is None
+    assert refine.choose_parent([(0, net, 74.0, True), (1, rung, None, False)], [], 0) == refine.Parent(1, 400, 74.8)
     refined: dict[str, Any] = {keys.REFINE_OF: {"trial": 1, "budget": 400, "score": 74.8}, **net}
     trials: list[tuple[int, dict[str, Any], float | None, bool]] = [
         (0, net, 74.0, True), (1, rung, None, False), (2, refined, 75.1, True),
     ]  # fmt: skip
-    assert refine.best_parent(trials) == refine.Parent(2, None, 75.1)
-    assert refine.best_parent([(0, net, 74.0, False)]) is None  # a value only counts when COMPLETE
+    assert refine.choose_parent(trials, [], 0) == refine.Parent(2, None, 75.1)
+    assert refine.choose_parent([(0, net, 74.0, False)], [], 0) is None  # a value only counts when COMPLETE
     copied = {keys.COPIED_FROM: "other:3"}  # another study's history: no net stored here
-    assert refine.best_parent([(0, net, 74.0, True), (1, copied, 76.0, True)]) == refine.Parent(0, None, 74.0)
+    assert refine.choose_parent([(0, net, 74.0, True), (1, copied, 76.0, True)], [], 0) == refine.Parent(0, None, 74.0)
     parent = refine.Parent(1, 400, 74.8)
     assert refine.Parent.from_attr(parent.to_attr()) == parent
 
@@ -130,11 +130,14 @@ def test_refine_keys_are_checked() -> None:
         _spec(refine_start=0.25)
 
 
-def test_runs_from_counts_one_nets_runs() -> None:
-    parent = refine.Parent(4, 90_000, 75.0)
+def test_a_run_counts_for_its_parents_trial_and_rung() -> None:
+    nets = [(4, {keys.ARTIFACT_NET_JSON: "id", keys.OFFICIAL_PROTOCOL: "v2-official",
+                 keys.RUNGS: [{keys.BUDGET: 90_000, keys.SCORE: 75.0}], keys.ARTIFACT_RUNG_NETS: {"90000": "a"}},
+             None, False)]  # fmt: skip
     ofs = [None, {"trial": 4, "budget": 90_000, "score": 75.0}, {"trial": 4, "budget": None, "score": 74.0},
            {"trial": 4, "budget": 90_000, "score": 75.0}, {"trial": 7, "budget": 90_000, "score": 75.0}]  # fmt: skip
-    assert refine.runs_from(ofs, parent) == 2 and refine.runs_from([], parent) == 0
+    assert refine.choose_parent(nets, ofs, 3) == refine.Parent(4, 90_000, 75.0)  # 2 of its 3 runs
+    assert refine.choose_parent(nets, ofs, 2) is None
 
 
 def _net_text(seed: int) -> str:

@@ -22,13 +22,13 @@ What it changes in the config (``refine_config``), and why:
 
 The study's best net is the parent of each run (``choose_parent``); a run that beats it is the next parent, so
 the runs climb (a (1 + λ) search whose mutation is deepqlearn training). A net gets at most ``[study]
-refine_runs`` runs (``runs_from``): in a crowd-prior study the first runs from gsurma's 74.95 net gave 75.22
+refine_runs`` runs: in a crowd-prior study the first runs from gsurma's 74.95 net gave 75.22
 within a minute, and the next 208 runs from that one found +0.01 (median 74.9): the climb stalls where the runs'
 spread around their parent no longer reaches above it. Then the next best net within ``PARENT_SPAN`` mph of the
 best has its runs (another lineage may climb where that one stalled; a run that did not beat its own parent is
-never one), and once those had theirs too the worker
-goes back to the search. Refinement starts after the search's ``[study] refine_start`` share of the study's
-budget: from minute 0, a cold study refined weak nets on half its workers while the search had found no good one.
+never one), and once those had theirs too the worker goes back to the search. Refinement starts after the
+search's ``[study] refine_start`` share of the study's budget: from minute 0, a cold study refined weak nets on
+half its workers while the search had found no good one.
 Each run is an ordinary trial (``refine_of``: its parent's trial and rung), never shown to the sampler, never a
 race entrant and never using the trial budget; its net reproduces from its parent's net, its config and its seed
 (``autotune evaluate --trial S:N --retrain``).
@@ -48,7 +48,7 @@ from autotune.search.seeds import derived_seed
 
 __all__ = [
     "BURNIN", "EXPLORE_DECISIONS", "START_LEARN", "PARENT_SPAN", "REFINE_SALT", "Parent", "ranked_parents",
-    "best_parent", "choose_parent", "refine_config", "refine_seed", "runs_from", "is_refinement",
+    "choose_parent", "refine_config", "refine_seed", "is_refinement",
 ]  # fmt: skip
 
 EXPLORE_DECISIONS = 1_000
@@ -107,20 +107,15 @@ def ranked_parents(trials: Iterable[tuple[int, Mapping[str, Any], float | None, 
     return [p for _, p in ranked]
 
 
-def best_parent(trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]]) -> Parent | None:
-    """The best stored net of ``trials`` (``ranked_parents``' first); None before any."""
-    ranked = ranked_parents(trials)
-    return ranked[0] if ranked else None
-
-
 def choose_parent(
     trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]],
     refine_ofs: Iterable[Mapping[str, Any] | None],
     max_runs: int,
 ) -> Parent | None:
-    """The net the next refinement run trains on from: the best stored net that had fewer than ``max_runs`` runs
-    (``refine_ofs`` as in ``runs_from``; 0: no bound) among those within ``PARENT_SPAN`` mph of the best; None when
-    there is none (no net yet, or every such net had its runs: the worker goes back to the search)."""
+    """The net the next refinement run trains on from: the best stored net (``ranked_parents``) that had fewer than
+    ``max_runs`` runs (0: no bound) among those within ``PARENT_SPAN`` mph of the best; None when there is none (no
+    net yet, or every such net had its runs: the worker goes back to the search). ``refine_ofs``: the ``refine_of``
+    attrs of the study's trials (None: not a refinement run); a run counts for its parent's trial and rung."""
     ranked = ranked_parents(trials)
     if not ranked:
         return None
@@ -133,13 +128,6 @@ def choose_parent(
         if counts[(parent.trial, parent.budget)] < max_runs:
             return parent
     return None
-
-
-def runs_from(refine_ofs: Iterable[Mapping[str, Any] | None], parent: Parent) -> int:
-    """How many of the runs whose ``refine_of`` attrs are ``refine_ofs`` (None: not a refinement run) trained on from
-    ``parent`` (its trial and rung)."""
-    return sum(1 for r in refine_ofs if r is not None and r.get("trial") == parent.trial
-               and r.get("budget") == parent.budget)  # fmt: skip
 
 
 def refine_config(parent: TrainConfig, iterations: int, learning_rate: float) -> TrainConfig:

@@ -545,6 +545,8 @@ class TrialRow:
     """A race run the search started before the race (``incumbent_run``: ``[study] intensify_share``)."""
     refine_of: int | None = None
     """A refinement run (``[study] refine_share``): the trial whose net it trained on from."""
+    soup: bool = False
+    """A weight soup (``[study] refine_soups``): a refinement trial that averaged runs' weights, training nothing."""
     predicted_cost_s: float | None = None
     cause: str | None = None
     retryable: bool = False
@@ -576,6 +578,7 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 race_seed=a.get("race_seed"),
                 incumbent=bool(a.get("incumbent_run")),
                 refine_of=(a.get("refine_of") or {}).get("trial"),
+                soup="soup_of" in a,
                 predicted_cost_s=a.get("predicted_cost_s"),
                 cause=a.get("cause"),
                 retryable=bool(a.get("retryable")),
@@ -1214,15 +1217,16 @@ def _pct(x: float | None) -> str:
 
 
 def refine_figures(rows: Sequence[TrialRow], worker_s: float) -> dict[str, Any]:
-    """The refinement runs: how many, their share of the worker time, their best score, how many beat their
-    parent's net (``refine_improved``), and the lineage of the best one (its fresh root's trial number)."""
+    """The refinement runs: how many (weight soups among them), their share of the worker time, their best score,
+    and the lineage of the best one (its fresh root's trial number)."""
     runs = [r for r in rows if r.refine_of is not None]
     scores = [r.value for r in runs if r.state == "COMPLETE" and r.value is not None]
     busy = sum(r.wall_s or 0.0 for r in runs)
     best = max((r for r in runs if r.state == "COMPLETE" and r.value is not None), key=lambda r: r.value or 0.0,
                default=None)  # fmt: skip
     by_number = {r.number: r for r in rows}
-    return {"refine_runs": len(runs), "refine_share": busy / worker_s if worker_s > 0 else None,
+    return {"refine_runs": len(runs), "refine_soups": sum(r.soup for r in runs),
+            "refine_share": busy / worker_s if worker_s > 0 else None,
             "refine_best": max(scores) if scores else None,
             "refine_root": lineage_root(best, by_number).number if best is not None else None}  # fmt: skip
 
@@ -1253,6 +1257,7 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
                 f"{_pct(run['refused_share'])}, worst trial {_f(run['worst_overrun'])}× its limit, "
                 f"{run.get('incumbent_runs', 0)} incumbent runs ({_pct(run.get('incumbent_share'))} of worker time, "
                 f"best {_f(run.get('incumbent_best'))}), {run.get('refine_runs', 0)} refinement runs "
+                f"({run.get('refine_soups', 0)} of them weight soups) "
                 f"({_pct(run.get('refine_share'))} of worker time, best {_f(run.get('refine_best'))}, from trial "
                 f"{run.get('refine_root')}), reseeding "
                 f"{_f(run.get('reseed_wall_s'), '.0f')} s, load {run['load_start']} → {run['load_end']}"

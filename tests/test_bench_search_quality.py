@@ -442,12 +442,16 @@ def test_refinement_runs_count_as_nets_not_as_picks() -> None:
     study = optuna.create_study(direction="maximize")
     study.add_trial(optuna.trial.create_trial(value=75.2, user_attrs={"refine_of": {"trial": 0, "budget": None,
                                                                                     "score": 74.9}}))  # fmt: skip
-    assert sq.rows_from_trials(study.get_trials(), time.time())[0].refine_of == 0
+    study.add_trial(optuna.trial.create_trial(value=75.3, user_attrs={"refine_of": {"trial": 0, "budget": None,
+                                                                                    "score": 74.9},
+                                                                      "soup_of": [1, 2]}))  # fmt: skip
+    found = sq.rows_from_trials(study.get_trials(), time.time())
+    assert found[0].refine_of == 0 and not found[0].soup and found[1].soup
     rows = [
         row(0, 74.9, 30, warm_start="crowd:a"),
         row(1, 74.0, 60),
         dataclasses.replace(row(2, 75.2, 90, wall_s=20.0), refine_of=0),
-        dataclasses.replace(row(3, 75.4, 120, wall_s=20.0), refine_of=2),
+        dataclasses.replace(row(3, 75.4, 120, wall_s=20.0), refine_of=2, soup=True),
         dataclasses.replace(row(4, 74.5, 150, wall_s=20.0), refine_of=1),
         dataclasses.replace(row(5, None, 160, state="PRUNED", wall_s=20.0), refine_of=3),
     ]
@@ -456,4 +460,5 @@ def test_refinement_runs_count_as_nets_not_as_picks() -> None:
     assert sq.lineage_root(rows[3], {r.number: r for r in rows}).number == 0
     assert sq.best_single(rows, 200).number == 0 and sq.chosen_trial(rows, 200).number == 0
     figures = sq.refine_figures(rows, 400.0)
-    assert figures == {"refine_runs": 4, "refine_share": pytest.approx(0.2), "refine_best": 75.4, "refine_root": 0}
+    assert figures == {"refine_runs": 4, "refine_soups": 1, "refine_share": pytest.approx(0.2), "refine_best": 75.4,
+                       "refine_root": 0}  # fmt: skip

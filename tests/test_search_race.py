@@ -191,21 +191,26 @@ def test_refinement_runs_train_on_from_the_best_net_and_retrain_exactly(tmp_path
     """With ``refine_share``, half of the 2 workers train on from the study's best single net through Ray: each
     run's parent is a stored net with the score it names, its seeds are the study's refinement seeds in order, it
     uses no budget, and ``autotune evaluate --retrain`` (``retrain_trial``) gives its score again from its parent's
-    stored net, exactly."""
+    stored net, exactly; with ``refine_soups`` a soup of a parent's best 2 runs is scored and retrains exactly too."""
     from autotune.search.records import retrain_trial, scored_nets
     from autotune.search.refine import refine_seed
     from autotune.search.storage import open_storage
 
     spec = tmp_path / "race.toml"
     text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 75")
-    spec.write_text(text.replace("race_seeds = 1\n", "race_seeds = 1\nrefine_share = 0.5\nrefine_iterations = 1000\n"))
+    spec.write_text(
+        text.replace(
+            "race_seeds = 1\n", "race_seeds = 1\nrefine_share = 0.5\nrefine_iterations = 1000\nrefine_soups = [2]\n"
+        )
+    )
     code, out, err = finish(launch(tmp_path, str(spec), tag="refi-" + tmp_path.name), timeout=400)
     assert code == 0, err
     study = load(tmp_path, "race")
     trials = study.get_trials(deepcopy=False)
     refined = [t for t in trials if "refine_of" in t.user_attrs]
     assert refined, "no refinement run"
-    assert [t.user_attrs["seed"] for t in refined] == [refine_seed(0, k) for k in range(len(refined))]
+    runs = [t for t in refined if "soup_of" not in t.user_attrs]  # the weight soups train nothing: no seed of theirs
+    assert [t.user_attrs["seed"] for t in runs] == [refine_seed(0, k) for k in range(len(runs))]
     for t in refined:
         parent = t.user_attrs["refine_of"]
         source = trials[parent["trial"]]
@@ -218,4 +223,8 @@ def test_refinement_runs_train_on_from_the_best_net_and_retrain_exactly(tmp_path
                             artifacts=tmp_path / "runs" / "race" / "artifacts")  # fmt: skip
     rep = retrain_trial(storages, "race", done[-1].number)
     assert rep.identical and rep.stored == done[-1].value
+    soups = [t for t in done if "soup_of" in t.user_attrs]
+    assert soups, "no weight soup"
+    rep = retrain_trial(storages, "race", soups[-1].number)  # its ingredients' stored nets averaged again
+    assert rep.identical and rep.stored == soups[-1].value
     assert tagged_processes("refi-" + tmp_path.name) == []

@@ -62,7 +62,8 @@ from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
-from autotune.search import keys, racing, refine, space
+from autotune.convnet.netjson import dumps_net, loads_net
+from autotune.search import keys, racing, refine, soup, space
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
 from autotune.search.denoise import DenoisedSampler
@@ -802,7 +803,10 @@ class Driver:
         if not self._refine_open():
             return False
         trials = self.study.get_trials(deepcopy=False)
-        refine_ofs = [t.user_attrs.get(keys.REFINE_OF) if keys.RETRY_OF not in t.user_attrs else None for t in trials]
+        refine_ofs = [  # the training runs: a soup trains nothing, and uses neither a net's runs nor a seed
+            t.user_attrs.get(keys.REFINE_OF) if not {keys.RETRY_OF, keys.SOUP_OF} & t.user_attrs.keys() else None
+            for t in trials
+        ]  # fmt: skip
         parent = refine.choose_parent(
             ((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials), refine_ofs,
             st.refine_runs,
@@ -810,6 +814,8 @@ class Driver:
         if parent is None:
             return False  # no net yet, or the nets near the best had their runs: the worker goes back to the search
         source = trials[parent.trial]
+        if st.refine_soups and self._launch_soup(slot, trials, parent):
+            return True
         top = TrainConfig.from_mapping(source.user_attrs[keys.CONFIG])
         rungs = source.user_attrs.get(keys.RUNGS)
         trained = top if parent.budget is None else trained_rung_config(top, parent.budget, rungs)
@@ -824,6 +830,38 @@ class Driver:
             keys.CONFIG: config, keys.SEED: refine.refine_seed(st.seed, index), keys.REFINE_OF: parent.to_attr(),
         })  # fmt: skip
         return self._launch_next(slot)
+
+    def _launch_soup(self, slot: int, trials: list[FrozenTrial], parent: refine.Parent) -> bool:
+        """Score the next weight soup of ``parent``'s finished refinement runs on ``slot`` (``soup.next_soup`` over
+        ``[study] refine_soups``); False when every size's best set had its soup."""
+        assert self.study is not None
+        mine = parent.to_attr()
+        runs, tried = [], []
+        for t in trials:
+            of = t.user_attrs.get(keys.REFINE_OF)
+            if of is None or keys.RETRY_OF in t.user_attrs or (of.get("trial"), of.get("budget")) != (
+                    mine["trial"], mine["budget"]):  # fmt: skip
+                continue
+            if keys.SOUP_OF in t.user_attrs:
+                tried.append(t.user_attrs[keys.SOUP_OF])
+            elif t.state == TrialState.COMPLETE and t.value is not None and t.user_attrs.get(keys.ARTIFACT_NET_JSON):
+                runs.append((t.number, float(t.value)))
+        ingredients = soup.next_soup(runs, self.spec.study.refine_soups, tried)
+        if ingredients is None:
+            return False
+        first = trials[ingredients[0]]
+        self.study.enqueue_trial(dict(first.params), user_attrs={
+            keys.CONFIG: first.user_attrs[keys.CONFIG], keys.REFINE_OF: mine, keys.SOUP_OF: list(ingredients),
+        })  # fmt: skip
+        return self._launch_next(slot)
+
+    def _soup_net(self, ingredients: list[int]) -> str:
+        """The convnetjs Net JSON of the weight soup of ``ingredients``' stored nets."""
+        texts = [(int(n), self._parent_net(refine.Parent(int(n), None, 0.0))) for n in ingredients]
+        try:
+            return dumps_net(soup.average_nets([loads_net(text, where=f"trial {n}") for n, text in texts]))
+        except ConfigError as exc:
+            raise _Refused(f"weight soup: {exc}") from None
 
     def _refine_open(self) -> bool:
         """Whether the search has had its ``refine_start`` share of the study's budget: of ``timeout_s`` (this run's
@@ -1056,7 +1094,10 @@ class Driver:
                 if not self._held([config]):
                     raise _Refused(self._over_memory(config))
                 rungs: tuple[int, ...] = (config.train_iterations,) if race and self.spec.ladder else ()
-                if refine_of is not None:
+                ingredients = trial.user_attrs.get(keys.SOUP_OF)
+                if ingredients is not None:
+                    init_net = self._soup_net(ingredients)
+                elif refine_of is not None:
                     init_net = self._parent_net(refine.Parent.from_attr(refine_of))
                 cost = self._model().predict(config, screened=False)  # measured with its own ε_test
                 predicted: Plan | None = Plan((config.train_iterations,), (cost,))
@@ -1089,8 +1130,10 @@ class Driver:
             self._notify()
             return True
         assert predicted is not None
-        trial.set_user_attr(keys.PREDICTED_COST, predicted.total_s)
-        trial.set_user_attr(keys.PREDICTED_RUNG_COSTS, list(predicted.costs))
+        soup_of = keys.SOUP_OF in trial.user_attrs
+        if not soup_of:  # the model prices trainings; a soup's one evaluation takes seconds
+            trial.set_user_attr(keys.PREDICTED_COST, predicted.total_s)
+            trial.set_user_attr(keys.PREDICTED_RUNG_COSTS, list(predicted.costs))
         if isinstance(self.study.sampler, CostGatedSampler):
             trial.set_user_attr(keys.REFUSED_DRAWS, self.study.sampler.refused(trial.number))
             balanced = self.study.sampler.base
@@ -1112,6 +1155,7 @@ class Driver:
             epsilon_test_screen_runs=self.spec.ladder_epsilon_screen_runs,
             deadline=self._wall0 + st.timeout_s if st.timeout_s is not None and self._wall0 else None,
             init_net=init_net,
+            evaluate_only=soup_of,
         )  # fmt: skip
         trial.set_user_attr(keys.WORKER, self.pool.worker_of(slot))
         trial.set_user_attr(keys.RAY_NODE, self.pool.node_of(slot))
@@ -1223,8 +1267,8 @@ class Driver:
 def _observations(t: FrozenTrial) -> list[Observation]:
     """A finished trial's rungs as cost observations (work terms, wall seconds); a single training as one."""
     cfg = t.user_attrs.get(keys.CONFIG)
-    if not isinstance(cfg, dict) or keys.COPIED_FROM in t.user_attrs:
-        return []
+    if not isinstance(cfg, dict) or keys.COPIED_FROM in t.user_attrs or keys.SOUP_OF in t.user_attrs:
+        return []  # copied (timed elsewhere) or a soup (an evaluation, no training)
     try:
         top = TrainConfig.from_mapping(cfg)
     except ConfigError:

@@ -105,6 +105,8 @@ INCUMBENT_RUN: Final = "incumbent_run"
 REFINE_OF: Final = "refine_of"
 """Refinement run (``[study] refine_share``): ``{"trial", "budget", "score"}`` of the net it trained on from (budget
 null: that trial's value; else its kept rung's)."""
+SOUP_OF: Final = "soup_of"
+"""Weight soup (``[study] refine_soups``): the refinement runs whose nets' mean weights it scored (no training)."""
 WARM_START: Final = "warm_start"
 """Crowd prior: where the enqueued setting comes from (``crowd:<submission id>``)."""
 WARM_START_CLIPPED: Final = "warm_start_clipped"

@@ -95,6 +95,9 @@ class TrialTask:
     init_net: str | None = None
     """convnetjs Net JSON of a trained net to train on from (a refinement run, ``[study] refine_share``: the page
     that loads weights with ``value_net.fromJSON`` and trains on); None: fresh weights from the seed."""
+    evaluate_only: bool = False
+    """Score ``init_net`` as it is, officially at the config's ε_test, training nothing (a weight soup,
+    ``autotune.search.soup``)."""
 
 
 @dataclasses.dataclass
@@ -185,6 +188,8 @@ def run_trial(task: TrialTask, report: Report) -> TrialOutcome:
         )  # fmt: skip
 
     try:
+        if task.evaluate_only:
+            return _run_soup(task, attrs, _Limits.of(task, t0), finish)
         if task.rungs:
             return _run_ladder(task, report, attrs, _Limits.of(task, t0), finish, rung_nets)
         return _run(task, report, attrs, t0, finish)
@@ -342,6 +347,36 @@ def _run_ladder(
                           keys.EVAL_SECONDS: rungs[-1][keys.EVAL_SECONDS]})  # fmt: skip
     assert value is not None
     return finish(COMPLETE, value, None, net_json=net_json, net_js=net_js)
+
+
+def _run_soup(
+    task: TrialTask, attrs: dict[str, Any], limits: _Limits, finish: Callable[..., TrialOutcome]
+) -> TrialOutcome:
+    """Score a weight soup (``task.init_net``, ``evaluate_only``) officially at its config's ε_test; no training."""
+    from autotune import TrainConfig, dumps_net, evaluate_official, export_netjs, official_protocol
+
+    config = TrainConfig.from_mapping(task.config)
+    protocol = task.final_protocol or official_protocol(config)
+    convnet = _init_net(task)
+    if convnet is None:
+        raise ValueError("a weight soup needs its net (TrialTask.init_net)")
+    attrs.update({
+        keys.CONFIG: config.to_mapping(), keys.SETTINGS: config.to_deepqlearn(), keys.INPUT_SIZE: config.net_inputs,
+        keys.NUM_STATES: config.num_states, keys.PARAM_COUNT: config.param_count, keys.OFFICIAL_PROTOCOL: protocol,
+        keys.FRAMES_SIMULATED: 0,
+    })  # fmt: skip
+    te = time.perf_counter()
+
+    def eval_progress(done: int, total: int) -> None:
+        limits.check(f"weight soup: official evaluation at {done:,} of {total:,} frames")
+
+    ev = evaluate_official(convnet, config, protocol=protocol, progress=eval_progress)
+    score = float(ev.median_site)
+    if not math.isfinite(score):  # pragma: no cover - scores are finite speeds
+        return finish(FAILED, None, f"official score is not finite: {score!r}")
+    attrs.update({keys.FRAMES_SIMULATED: ev.runs * ev.frames, keys.OFFICIAL_MEAN: ev.mean, keys.OFFICIAL_STD: ev.std,
+                  keys.TRAIN_SECONDS: 0.0, keys.EVAL_SECONDS: time.perf_counter() - te})  # fmt: skip
+    return finish(COMPLETE, score, None, net_json=dumps_net(convnet), net_js=export_netjs(convnet, config.settings))
 
 
 def _init_net(task: TrialTask) -> Any:

@@ -53,6 +53,7 @@ __all__ = [
     "format_summary",
     "rescore_trial",
     "retrain_trial",
+    "soup_net",
     "race_setup",
     "race_summary",
     "study_resources",
@@ -600,8 +601,9 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
     """Train trial ``number`` again — its stored config and seed, the study's report settings — and score it.
 
     The call is the objective's own (``objective.run_trial`` with the task the driver built, never
-    pruned, no time limit), so a deterministic learner gives the stored score bit for bit. The
-    caller owns the process settings (``configure_process``) as a worker does.
+    pruned, no time limit), so a deterministic learner gives the stored score bit for bit; a weight soup
+    (``soup_of``) averages its ingredients' stored nets again and is scored, training nothing. The caller owns the
+    process settings (``configure_process``) as a worker does.
     """
     import time
 
@@ -610,6 +612,10 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
     study, trial = _complete_trial(storages, study_name, number)
     evaluation = _evaluation(study)
     parent = trial.user_attrs.get(keys.REFINE_OF)  # a refinement run trains on from its parent's stored net
+    ingredients = trial.user_attrs.get(keys.SOUP_OF)  # a weight soup averages its ingredients' stored nets again
+    init_net = None if parent is None else parent_net(storages, study, parent)
+    if ingredients is not None:
+        init_net = soup_net(storages, study, ingredients)
     task = TrialTask(
         number=number,
         config=trial.user_attrs[keys.CONFIG],
@@ -619,7 +625,8 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
         quick_frames=int(evaluation.get("quick_frames", TrialTask.quick_frames)),
         final_protocol=str(trial.user_attrs.get(keys.OFFICIAL_PROTOCOL) or evaluation.get("final_protocol") or ""),
         timeout_s=None,
-        init_net=None if parent is None else parent_net(storages, study, parent),
+        init_net=init_net,
+        evaluate_only=ingredients is not None,
     )
     t0 = time.perf_counter()
     outcome = run_trial(task, lambda step, frames, score: False)
@@ -639,6 +646,16 @@ def parent_net(storages: Storages, study: StudyRecord, refine_of: Mapping[str, A
     """The Net JSON a refinement run trained on from (its ``refine_of``), read from the artifact store."""
     number, budget = int(refine_of["trial"]), refine_of.get("budget")
     return net_text(storages, number, _numbered(study, number).user_attrs, None if budget is None else int(budget))
+
+
+def soup_net(storages: Storages, study: StudyRecord, ingredients: Sequence[int]) -> str:
+    """The Net JSON of a weight soup (``soup_of``): the mean weights of its ingredients' stored nets."""
+    from autotune.convnet.netjson import dumps_net, loads_net
+    from autotune.search.soup import average_nets
+
+    nets = [loads_net(parent_net(storages, study, {"trial": int(n), "budget": None}), where=f"trial {n} net.json")
+            for n in ingredients]  # fmt: skip
+    return dumps_net(average_nets(nets))
 
 
 def _spec_table(study: StudyRecord, table: str) -> dict[str, Any]:

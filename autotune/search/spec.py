@@ -6,7 +6,7 @@ Five tables, every key optional unless said otherwise::
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
-                  refine_runs, refine_start
+                  refine_runs, refine_start, refine_soups
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -252,6 +252,10 @@ class StudySection:
     refine_start: float = 0.0
     """Share of the study's budget — its time (``timeout_s``), else its trials (``n_trials``) — the search has to
     itself before refinement starts (0: from the first stored net)."""
+    refine_soups: tuple[int, ...] = ()
+    """Sizes k of the weight soups scored from each parent's refinement runs (``autotune.search.soup``): whenever a
+    parent's best k runs form a new set, a refinement worker scores the mean of their weights (no training); ()
+    none."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -679,8 +683,20 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
                           "e.g. refine_learning_rate = 0.1 (a tenth of the best net's own)")  # fmt: skip
     refine_runs = _int(table.get("refine_runs", d.refine_runs), f"{src}: [study] refine_runs", 0, 1_000_000)
     refine_start = _float(table.get("refine_start", d.refine_start), f"{src}: [study] refine_start", 0.0, 0.99)
+    soups = table.get("refine_soups", list(d.refine_soups))
+    if not isinstance(soups, (list, tuple)) or not all(isinstance(k, int) and not isinstance(k, bool) for k in soups):
+        raise where.error(
+            "refine_soups",
+            f"must be a list of integers, got {soups!r}",
+            "e.g. refine_soups = [2, 4] (soups of a parent's best 2 and best 4 runs), or [] for none",
+        )
+    if any(not 2 <= k <= 64 for k in soups) or len(set(soups)) != len(soups):
+        raise where.error("refine_soups", f"sizes must be distinct and in [2, 64], got {list(soups)!r}",
+                          "e.g. refine_soups = [2, 4]")  # fmt: skip
+    soups = tuple(soups)
     for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr),
-                       ("refine_runs", refine_runs), ("refine_start", refine_start)):  # fmt: skip
+                       ("refine_runs", refine_runs), ("refine_start", refine_start),
+                       ("refine_soups", soups)):  # fmt: skip
         if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
@@ -688,7 +704,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
-        intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start,
+        intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups,
     )  # fmt: skip
 
 

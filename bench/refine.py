@@ -3,6 +3,7 @@
     python bench/refine.py                                               # gsurma's setting: 8 steps of 8 runs
     python bench/refine.py --config runs/paper/journal.log:211 --steps 6 --runs 8 --learning-rate 0.1
     python bench/refine.py --steps 1 --runs 10 --learning-rate 1.0 --own-schedule   # the net's own ε schedule
+    python bench/refine.py --soups 2,4                                   # with weight soups ([study] refine_soups)
 
 Why: a study's refinement runs select, among nets trained on from its best one, those that score best with the
 official protocol — 500 fixed runs (v2-official: run k ↦ Park–Miller seed k + 1). A gain found that way could be
@@ -14,8 +15,10 @@ The parent: ``--config`` (as ``bench/ceiling.py`` reads it: a crowd id, ``JOURNA
 from ``--seed`` at its own length, scored officially at its own ε_test. Each step trains ``--runs`` refinement
 runs from the current best net (``refine.refine_config`` at ``--iterations`` and ``--learning-rate``; with
 ``--own-schedule`` the net's own ε schedule and threshold instead, only the length and the rate changed), seeds
-``refine.refine_seed(--seed, k)``, through the service's own learner and scoring; the best run becomes the
-parent when it beats it. ``--workers`` processes, one core each.
+``refine.refine_seed(--seed, k)``, through the service's own learner and scoring; with ``--soups K,…`` each step
+also scores the weight soup of its best K runs for each K (``soup.average_nets``, as ``[study] refine_soups``);
+the best net of the step — run or soup — becomes the parent when it beats it. ``--workers`` processes, one core
+each.
 
 Printed per step: the parent's official and held-out scores, the runs' official scores (median, best), the best
 run's held-out scores, and the wall time; then one JSON line (prefix ``JSON``) with the same figures and the load
@@ -77,6 +80,25 @@ def train_and_score(job: tuple[dict[str, Any], int, str | None]) -> tuple[float,
     return score, dumps_net(net), time.perf_counter() - t0
 
 
+def score_net(job: tuple[dict[str, Any], str]) -> float:
+    """The official score of a net (a weight soup) at ``config``'s ε_test."""
+    from autotune.convnet.netjson import loads_net
+    from autotune.learner.config import TrainConfig
+    from autotune.learner.official import evaluate_official
+
+    config_map, net = job
+    return float(evaluate_official(loads_net(net), TrainConfig.from_mapping(config_map)).median_site)
+
+
+def soups(runs: Sequence[tuple[float, str, float]], sizes: Sequence[int]) -> list[tuple[int, str]]:
+    """(K, Net JSON) of the weight soup of the best K of ``runs`` for each K in ``sizes`` that many runs allow."""
+    from autotune.convnet.netjson import dumps_net, loads_net
+    from autotune.search.soup import average_nets
+
+    ranked = sorted(runs, key=lambda r: -r[0])
+    return [(k, dumps_net(average_nets([loads_net(r[1]) for r in ranked[:k]]))) for k in sizes if len(ranked) >= k]
+
+
 def heldout(job: tuple[dict[str, Any], str, int]) -> float:
     """The site's median of the net on 500 ``custom`` runs from ``seed`` (runs the official protocol never plays)."""
     from autotune.convnet.netjson import loads_net
@@ -133,17 +155,24 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             jobs = [(child, refine_seed(args.seed, k + i), net) for i in range(args.runs)]
             k += args.runs
             runs = pool.map(train_and_score, jobs)
-            best = max(runs, key=lambda r: r[0])
+            mixed = soups(runs, args.soups)
+            soup_scores = pool.map(score_net, [(child, text) for _, text in mixed])
+            candidates = [*runs, *((sc, text, 0.0) for sc, (_, text) in zip(soup_scores, mixed, strict=True))]
+            best = max(candidates, key=lambda r: r[0])
             best_held = pool.map(heldout, [(child, best[1], s) for s in seeds])
             row = {
                 "step": step, "parent": score, "parent_heldout": held, "runs": [r[0] for r in runs],
-                "median": statistics.median(r[0] for r in runs), "best": best[0], "best_heldout": best_held,
+                "median": statistics.median(r[0] for r in runs), "best_run": max(r[0] for r in runs),
+                "soups": {str(k): sc for (k, _), sc in zip(mixed, soup_scores, strict=True)},
+                "best": best[0], "best_heldout": best_held,
                 "seconds": time.perf_counter() - t0,
             }  # fmt: skip
             steps.append(row)
             print(
                 f"step {step}: parent {score:.2f} (held-out {', '.join(f'{h:.2f}' for h in held)}) | runs median "
-                f"{row['median']:.2f}, best {best[0]:.2f} (held-out {', '.join(f'{h:.2f}' for h in best_held)}) | "
+                f"{row['median']:.2f}, best {row['best_run']:.2f}"
+                + "".join(f", soup of {k} {sc:.2f}" for (k, _), sc in zip(mixed, soup_scores, strict=True))
+                + f" | best {best[0]:.2f} (held-out {', '.join(f'{h:.2f}' for h in best_held)}) | "
                 f"{row['seconds']:.0f} s",
                 flush=True,
             )
@@ -151,7 +180,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 score, net, held = best[0], best[1], best_held
     return {
         "config": args.config, "seed": args.seed, "iterations": args.iterations, "learning_rate": args.learning_rate,
-        "own_schedule": args.own_schedule, "runs_per_step": args.runs, "workers": args.workers,
+        "own_schedule": args.own_schedule, "soups": list(args.soups), "runs_per_step": args.runs,
+        "workers": args.workers,
         "heldout_seeds": seeds, "steps": steps, "final": score, "final_heldout": held, "load": os.getloadavg(),
     }  # fmt: skip
 
@@ -165,12 +195,19 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--iterations", type=int, default=20_000, help="one run's length ([study] refine_iterations)")
     p.add_argument("--learning-rate", type=float, default=0.1, help="× the parent's ([study] refine_learning_rate)")
     p.add_argument("--own-schedule", action="store_true", help="keep the net's own ε schedule and threshold")
+    p.add_argument("--soups", default="", help="soup sizes K scored each step, e.g. 2,4 (default: none)")
     p.add_argument("--heldout", type=int, default=2, help="held-out sets of 500 custom runs")
     p.add_argument("--workers", type=int, default=2)
     args = p.parse_args(argv)
     for name in ("steps", "runs", "iterations", "workers"):
         if getattr(args, name) < 1:
             p.error(f"--{name}: must be ≥ 1, got {getattr(args, name)}")
+    try:
+        args.soups = tuple(int(k) for k in args.soups.split(",") if k.strip())
+    except ValueError:
+        p.error(f"--soups: sizes as integers, e.g. 2,4; got {args.soups!r}")
+    if any(k < 2 for k in args.soups):
+        p.error(f"--soups: each size must be ≥ 2, got {args.soups!r}")
     if args.learning_rate <= 0 or args.heldout < 0:
         p.error("--learning-rate must be > 0 and --heldout ≥ 0")
     return args

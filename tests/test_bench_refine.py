@@ -24,10 +24,11 @@ def test_the_climb_keeps_the_best_net_and_scores_it_on_held_out_runs(tmp_path: P
                       'temporal_window = 0\nexperience_size = 500\nstart_learn_threshold = 100\nlayers = "fc:4:relu"\n'
                       "batch_size = 8\n")  # fmt: skip
     args = br.parse_args(["--config", str(config), "--seed", "3", "--steps", "2", "--runs", "2", "--iterations",
-                          "1000", "--workers", "1", "--heldout", "1"])  # fmt: skip
+                          "1000", "--workers", "1", "--heldout", "1", "--soups", "2"])  # fmt: skip
     result = br.run(args)
     first, second = result["steps"]
-    assert len(first["runs"]) == 2 and first["best"] == max(first["runs"]) and len(first["best_heldout"]) == 1
+    assert len(first["runs"]) == 2 and first["best_run"] == max(first["runs"]) and len(first["best_heldout"]) == 1
+    assert list(first["soups"]) == ["2"] and first["best"] == max(*first["runs"], first["soups"]["2"])
     assert second["parent"] == max(first["parent"], first["best"])  # the better run became the parent
     assert result["final"] == max(second["parent"], second["best"])
     assert result["heldout_seeds"] == [br.HELDOUT_SEED]
@@ -43,5 +44,9 @@ def test_bad_arguments_name_the_option(capsys: pytest.CaptureFixture[str]) -> No
     with pytest.raises(SystemExit):
         br.parse_args(["--runs", "0"])
     assert "--runs: must be ≥ 1, got 0" in capsys.readouterr().err
+    for bad in ("2,x", "1"):
+        with pytest.raises(SystemExit):
+            br.parse_args(["--soups", bad])
+        assert "--soups: " in capsys.readouterr().err
     assert br.main(["--config", "no-such-setting", "--steps", "1"]) == 2
     assert "--config no-such-setting: neither a crowd submission id" in capsys.readouterr().err

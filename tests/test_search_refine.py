@@ -94,6 +94,22 @@ def test_once_the_best_net_had_its_runs_the_next_best_near_it_is_the_parent() ->
                                                                 refine.Parent(0, 100, 74.5)]  # fmt: skip
 
 
+def test_a_fresh_net_below_the_race_floor_is_no_parent() -> None:
+    """``min_budget`` (the driver's ``race_min_budget``): a rung below it screens; its best scores are often luck.
+    A trial's value counts at its top rung's budget; a refinement run or soup of an eligible net is eligible."""
+    ladder = {keys.ARTIFACT_NET_JSON: "id", keys.OFFICIAL_PROTOCOL: "v2-official",
+              keys.RUNGS: [{keys.BUDGET: 100, keys.SCORE: 75.5}, {keys.BUDGET: 300, keys.SCORE: 74.0}],
+              keys.ARTIFACT_RUNG_NETS: {"100": "a", "300": "b"}}  # fmt: skip
+    short = {keys.ARTIFACT_NET_JSON: "id", keys.RUNGS: [{keys.BUDGET: 100, keys.SCORE: 76.0}]}
+    child = {keys.ARTIFACT_NET_JSON: "id", keys.REFINE_OF: {"trial": 0, "budget": None, "score": 74.0}}
+    trials = [(0, ladder, 74.0, True), (1, short, 76.0, True), (2, child, 74.2, True)]
+    assert [(p.trial, p.budget) for p in refine.ranked_parents(trials)] == [(1, None), (0, 100), (2, None), (0, None)]
+    assert [(p.trial, p.budget) for p in refine.ranked_parents(trials, 300)] == [(2, None), (0, None)]
+    assert refine.choose_parent(trials, [], 0, min_budget=300) == refine.Parent(2, None, 74.2)
+    plain = {keys.ARTIFACT_NET_JSON: "id"}  # no ladder: nothing to measure it by
+    assert refine.ranked_parents([(0, plain, 70.0, True)], 300) == [refine.Parent(0, None, 70.0)]
+
+
 def test_refinement_seeds_are_their_own() -> None:
     seeds = [refine.refine_seed(0, i) for i in range(50)]
     assert len(set(seeds)) == 50 and seeds == [refine.refine_seed(0, i) for i in range(50)]
@@ -165,10 +181,11 @@ def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: P
     chosen = TINY.replace(epsilon_test_time=0.05)
 
     def add(value: float | None, state: Any = COMPLETE, net: str | None = None, **attrs: Any) -> int:
-        if net is not None:  # its net, as the driver stores a finished trial's (or its kept 400 rung's)
+        if net is not None:  # its net, as the driver stores a finished trial's (or its kept rung's)
             artifact = _upload(storages, study, net)
             rung = keys.RUNGS in attrs
-            attrs[keys.ARTIFACT_RUNG_NETS if rung else keys.ARTIFACT_NET_JSON] = {"400": artifact} if rung else artifact
+            kept = {str(r[keys.BUDGET]): artifact for r in attrs.get(keys.RUNGS, ())}
+            attrs[keys.ARTIFACT_RUNG_NETS if rung else keys.ARTIFACT_NET_JSON] = kept if rung else artifact
         study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=state,
                                                   user_attrs={keys.CONFIG: chosen.to_mapping(), **attrs}))  # fmt: skip
         return len(study.trials) - 1
@@ -198,13 +215,16 @@ def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: P
     assert nxt.user_attrs[keys.CONFIG] == refine.refine_config(chosen, 3000, 0.1).to_mapping()
     assert driver.pool.tasks[-1].init_net == texts[1]
     study.tell(driver._running.pop(0).trial, 73.9)  # noqa: SLF001 - worse: the parent stays
+    # a kept rung below the race's floor (1200, the ladder's top here) is no parent, however it scored
+    low = [{keys.BUDGET: 400, keys.SCORE: 76.0}]
+    add(None, PRUNED, net=texts[3], **{keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: low})
     # a kept rung that beats every value is the next parent, at the settings that rung trained with
-    rungs = [{keys.BUDGET: 400, keys.SCORE: 75.2, keys.EPSILON_TEST: 0.02}]
+    rungs = [{keys.BUDGET: 1200, keys.SCORE: 75.2, keys.EPSILON_TEST: 0.02}]
     kept = add(None, PRUNED, net=texts[2], **{keys.OFFICIAL_PROTOCOL: "v2-official", keys.RUNGS: rungs})
     assert driver._launch_refine(0)  # noqa: SLF001
     run = study.trials[-1]
-    assert run.user_attrs[keys.REFINE_OF] == {"trial": kept, "budget": 400, "score": 75.2}
-    expected = refine.refine_config(trained_rung_config(chosen, 400, rungs), 3000, 0.1)
+    assert run.user_attrs[keys.REFINE_OF] == {"trial": kept, "budget": 1200, "score": 75.2}
+    expected = refine.refine_config(trained_rung_config(chosen, 1200, rungs), 3000, 0.1)
     assert run.user_attrs[keys.CONFIG] == expected.to_mapping() and expected.epsilon_test_time == 0.02
     assert driver.pool.tasks[-1].init_net == texts[2]
     study.tell(driver._running.pop(0).trial, 75.0)  # noqa: SLF001
@@ -222,15 +242,15 @@ def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: P
     untimed = dataclasses.replace(spec.study, refine_start=0.25, timeout_s=None, n_trials=12)
     late = Driver(dataclasses.replace(spec, study=untimed), storages)
     late.open_study()
-    assert late.counts.started == 3 and late._refine_open()  # noqa: SLF001 - 3 of the 12 trials started
-    late.spec = dataclasses.replace(spec, study=dataclasses.replace(untimed, n_trials=13))
+    assert late.counts.started == 4 and late._refine_open()  # noqa: SLF001 - 4 of the 12 trials started
+    late.spec = dataclasses.replace(spec, study=dataclasses.replace(untimed, n_trials=17))
     assert not late._refine_open()  # noqa: SLF001
     # no budget used, never shown to the sampler, never a race entrant
     driver._refresh_counts()  # noqa: SLF001
     refined = [t for t in study.trials if keys.REFINE_OF in t.user_attrs]
-    assert driver.counts.started == 3 and driver.counts.refine_runs == len(refined) == 3
+    assert driver.counts.started == 4 and driver.counts.refine_runs == len(refined) == 3
     shown = DrawsView(study).get_trials(deepcopy=False)
-    assert not any(keys.REFINE_OF in t.user_attrs for t in shown) and len(shown) == 3
+    assert not any(keys.REFINE_OF in t.user_attrs for t in shown) and len(shown) == 4
     assert not {t.number for t in refined} & set(driver._race_field()[0])  # noqa: SLF001
     # the queue first; a spent budget, a single worker, share 0, the race's rounds, no time: none
     study.enqueue_trial(params)

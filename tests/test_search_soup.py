@@ -54,6 +54,8 @@ def test_the_next_soup_is_the_best_k_runs_not_tried_yet() -> None:
     assert soup.next_soup(runs[:3], (4, 2), []) == (11, 12)  # too few for 4: the next size
     assert soup.next_soup(runs[:1], (2,), []) is None
     assert soup.next_soup(runs + [(15, 76.0)], (2,), [(11, 12)]) == (11, 15)  # a new best: a new set
+    assert soup.next_soup(runs, (2, 4), [], floor=74.4) == (11, 12)
+    assert soup.next_soup(runs, (4,), [], floor=74.4) is None  # 3 runs within the span: no soup of 4
 
 
 def test_refine_soups_is_checked() -> None:

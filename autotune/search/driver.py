@@ -809,7 +809,7 @@ class Driver:
         ]  # fmt: skip
         parent = refine.choose_parent(
             ((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials), refine_ofs,
-            st.refine_runs,
+            st.refine_runs, self.spec.race_min_budget,
         )  # fmt: skip
         if parent is None:
             return False  # no net yet, or the nets near the best had their runs: the worker goes back to the search
@@ -833,7 +833,8 @@ class Driver:
 
     def _launch_soup(self, slot: int, trials: list[FrozenTrial], parent: refine.Parent) -> bool:
         """Score the next weight soup of ``parent``'s finished refinement runs on ``slot`` (``soup.next_soup`` over
-        ``[study] refine_soups``); False when every size's best set had its soup."""
+        ``[study] refine_soups``, runs within ``soup.SOUP_SPAN`` of the parent); False when every size's best set
+        had its soup."""
         assert self.study is not None
         mine = parent.to_attr()
         runs, tried = [], []
@@ -846,7 +847,7 @@ class Driver:
                 tried.append(t.user_attrs[keys.SOUP_OF])
             elif t.state == TrialState.COMPLETE and t.value is not None and t.user_attrs.get(keys.ARTIFACT_NET_JSON):
                 runs.append((t.number, float(t.value)))
-        ingredients = soup.next_soup(runs, self.spec.study.refine_soups, tried)
+        ingredients = soup.next_soup(runs, self.spec.study.refine_soups, tried, parent.score - soup.SOUP_SPAN)
         if ingredients is None:
             return False
         first = trials[ingredients[0]]

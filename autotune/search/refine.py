@@ -20,7 +20,9 @@ What it changes in the config (``refine_config``), and why:
   74.52 and 75.03). That is the rate of the lineage's fresh training: a run refined from a refinement run keeps
   its parent's rate (a tenth more each generation froze a cold study's climbs: 1.9e-9 → 1.9e-11 in two).
 
-The study's best net is the parent of each run (``choose_parent``); a run that beats it is the next parent, so
+The study's best net is the parent of each run (``choose_parent``) — of the fresh trainings only those at the seed
+race's floor (``min_top``) or above: a cold study's best net, a 10k rung whose weights had moved 7.7 % from their
+initial values (its score their luck), gave 210 runs none above it. A run that beats it is the next parent, so
 the runs climb (a (1 + λ) search whose mutation is deepqlearn training). A net gets at most ``[study]
 refine_runs`` runs: in a crowd-prior study the first runs from gsurma's 74.95 net gave 75.22
 within a minute, and the next 208 runs from that one found +0.01 (median 74.9): the climb stalls where the runs'
@@ -29,6 +31,8 @@ best has its runs (another lineage may climb where that one stalled; a run that 
 never one), and once those had theirs too the worker goes back to the search. Refinement starts after the
 search's ``[study] refine_start`` share of the study's budget: from minute 0, a cold study refined weak nets on
 half its workers while the search had found no good one.
+With ``[study] refine_soups`` a parent's best runs are also averaged into a weight soup (``autotune.search.soup``),
+scored with no training: a parent too once it beats its own.
 Each run is an ordinary trial (``refine_of``: its parent's trial and rung), never shown to the sampler, never a
 race entrant and never using the trial budget; its net reproduces from its parent's net, its config and its seed
 (``autotune evaluate --trial S:N --retrain``).
@@ -82,12 +86,16 @@ class Parent:
         return cls(int(attr["trial"]), None if budget is None else int(budget), float(attr["score"]))
 
 
-def ranked_parents(trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]]) -> list[Parent]:
+def ranked_parents(
+    trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]], min_budget: int = 0
+) -> list[Parent]:
     """The stored nets of ``trials`` (number, user attrs, value, COMPLETE?), best first by ``records.net_rank``:
     ``scored_nets`` (kept rungs too), refinement runs included, among the nets the study stores (a trial's value
     needs its ``artifact_net_json``: history copied from another study has none), each once (a COMPLETE trial's
-    top rung is its value's net: a cold study's refinement gave one net's two entries 32 runs each), and of the
-    refinement runs only those that beat their parent."""
+    top rung is its value's net: a cold study's refinement gave one net's two entries 32 runs each), of the
+    refinement runs only those that beat their parent, and of the fresh trainings only those of ``min_budget``
+    iterations or more (the race's floor, ``min_top``: a rung below it screens, and its best scores are often its
+    initial weights' luck — a cold study's best, a 10k rung whose weights moved 7.7 %, gave 210 runs none above it)."""
     ranked: list[tuple[tuple[float, int, int], Parent]] = []
     for number, attrs, value, complete in trials:
         origin = attrs.get(keys.REFINE_OF)
@@ -96,7 +104,11 @@ def ranked_parents(trials: Iterable[tuple[int, Mapping[str, Any], float | None, 
             # such children of one net 32 runs each, none above it)
         nets = scored_nets(attrs, value, complete)
         rungs = [budget for _, budget in nets if budget is not None]
+        trained = [int(r[keys.BUDGET]) for r in attrs.get(keys.RUNGS) or () if keys.BUDGET in r]
         for score, budget in nets:
+            length = budget if budget is not None else max(trained, default=None)  # a value: its top rung's
+            if origin is None and length is not None and length < min_budget:
+                continue
             if budget is None and not attrs.get(keys.ARTIFACT_NET_JSON):
                 continue
             top = budget is not None and budget == max(rungs) and attrs.get(keys.ARTIFACT_NET_JSON)
@@ -111,12 +123,14 @@ def choose_parent(
     trials: Iterable[tuple[int, Mapping[str, Any], float | None, bool]],
     refine_ofs: Iterable[Mapping[str, Any] | None],
     max_runs: int,
+    min_budget: int = 0,
 ) -> Parent | None:
     """The net the next refinement run trains on from: the best stored net (``ranked_parents``) that had fewer than
     ``max_runs`` runs (0: no bound) among those within ``PARENT_SPAN`` mph of the best; None when there is none (no
     net yet, or every such net had its runs: the worker goes back to the search). ``refine_ofs``: the ``refine_of``
-    attrs of the study's trials (None: not a refinement run); a run counts for its parent's trial and rung."""
-    ranked = ranked_parents(trials)
+    attrs of the study's trials (None: not a refinement run); a run counts for its parent's trial and rung;
+    ``min_budget``: the shortest fresh training that is a parent (``ranked_parents``)."""
+    ranked = ranked_parents(trials, min_budget)
     if not ranked:
         return None
     if not max_runs:

@@ -9,20 +9,27 @@ first 5 steps (75.15 against 75.02, 75.28 / 75.15, 75.31 / 75.20, 75.45 / 75.42)
 from them; the soup of all 8 (the bad runs too) never did.
 
 When a worker would start a refinement run of a parent whose best ``k`` runs (``[study] refine_soups`` = the sizes
-k) form a set no soup of it has tried yet, it scores that set's soup instead (``next_soup``). A soup is an ordinary
+k) form a set no soup of it has tried yet, it scores that set's soup instead (``next_soup``). Only runs within
+``SOUP_SPAN`` of their parent's score are ingredients: in a crowd-prior study the best 4 of a parent's first runs
+included two that had collapsed (69.08, 56.12), and their soup scored 73.37 against the parent's 75.29; every soup
+that won outside a study had its ingredients within 0.4 mph of the parent. A soup is an ordinary
 trial: ``refine_of`` its parent, ``soup_of`` its ingredients (the trials whose nets it averages; its net reproduces
 from theirs), its config theirs. A soup that beats its parent is a parent like any run that did.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
 
 from autotune.convnet.spec import ConvNet, NetSpecError, same_structure
 
-__all__ = ["average_nets", "next_soup"]
+__all__ = ["SOUP_SPAN", "average_nets", "next_soup"]
+
+SOUP_SPAN = 0.5
+"""mph below its parent's score within which a refinement run is a soup ingredient."""
 
 
 def average_nets(nets: Sequence[ConvNet]) -> ConvNet:
@@ -42,13 +49,13 @@ def average_nets(nets: Sequence[ConvNet]) -> ConvNet:
 
 
 def next_soup(
-    runs: Iterable[tuple[int, float]], sizes: Sequence[int], tried: Iterable[Iterable[int]]
+    runs: Iterable[tuple[int, float]], sizes: Sequence[int], tried: Iterable[Iterable[int]], floor: float = -math.inf
 ) -> tuple[int, ...] | None:
     """The ingredients (trial numbers, ascending) of the next soup of one parent: for each size k of ``sizes`` in
-    order, its best k finished ``runs`` (trial number, score; best score first, the earlier trial on ties) when
-    there are k of them and no soup in ``tried`` (each an ingredient set) had that set; None when every size's set
-    was tried (or too few runs finished)."""
-    ranked = sorted(runs, key=lambda r: (-r[1], r[0]))
+    order, its best k finished ``runs`` (trial number, score; best score first, the earlier trial on ties) that
+    score ``floor`` or more (the parent's score − ``SOUP_SPAN``), when there are k of them and no soup in ``tried``
+    (each an ingredient set) had that set; None when every size's set was tried (or too few runs qualify)."""
+    ranked = sorted((r for r in runs if r[1] >= floor), key=lambda r: (-r[1], r[0]))
     seen = {frozenset(s) for s in tried}
     for k in sizes:
         if len(ranked) < k:

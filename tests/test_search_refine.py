@@ -102,7 +102,9 @@ def test_a_fresh_net_below_the_race_floor_is_no_parent() -> None:
               keys.ARTIFACT_RUNG_NETS: {"100": "a", "300": "b"}}  # fmt: skip
     short = {keys.ARTIFACT_NET_JSON: "id", keys.RUNGS: [{keys.BUDGET: 100, keys.SCORE: 76.0}]}
     child = {keys.ARTIFACT_NET_JSON: "id", keys.REFINE_OF: {"trial": 0, "budget": None, "score": 74.0}}
-    trials = [(0, ladder, 74.0, True), (1, short, 76.0, True), (2, child, 74.2, True)]
+    trials: list[tuple[int, dict[str, Any], float | None, bool]] = [
+        (0, ladder, 74.0, True), (1, short, 76.0, True), (2, child, 74.2, True),
+    ]  # fmt: skip
     assert [(p.trial, p.budget) for p in refine.ranked_parents(trials)] == [(1, None), (0, 100), (2, None), (0, None)]
     assert [(p.trial, p.budget) for p in refine.ranked_parents(trials, 300)] == [(2, None), (0, None)]
     assert refine.choose_parent(trials, [], 0, min_budget=300) == refine.Parent(2, None, 74.2)

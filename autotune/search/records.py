@@ -613,9 +613,10 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
     evaluation = _evaluation(study)
     parent = trial.user_attrs.get(keys.REFINE_OF)  # a refinement run trains on from its parent's stored net
     ingredients = trial.user_attrs.get(keys.SOUP_OF)  # a weight soup averages its ingredients' stored nets again
-    init_net = None if parent is None else parent_net(storages, study, parent)
     if ingredients is not None:
-        init_net = soup_net(storages, study, ingredients)
+        init_net: str | None = soup_net(storages, study, ingredients)
+    else:
+        init_net = None if parent is None else parent_net(storages, study, parent)
     task = TrialTask(
         number=number,
         config=trial.user_attrs[keys.CONFIG],

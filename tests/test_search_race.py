@@ -200,7 +200,9 @@ def test_refinement_runs_train_on_from_the_best_net_and_retrain_exactly(tmp_path
     text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 75")
     spec.write_text(
         text.replace(
-            "race_seeds = 1\n", "race_seeds = 1\nrefine_share = 0.5\nrefine_iterations = 1000\nrefine_soups = [2]\n"
+            "race_seeds = 1\n",
+            "race_seeds = 1\nrefine_share = 0.5\nrefine_iterations = 1000\nrefine_soups = [2]\n"
+            "refine_soup_span = 100\n",  # the smoke nets' runs scatter by mph: any finished pair is soup
         )
     )
     code, out, err = finish(launch(tmp_path, str(spec), tag="refi-" + tmp_path.name), timeout=400)

@@ -247,6 +247,11 @@ def test_the_driver_refines_the_best_net_on_its_share_of_the_workers(tmp_path: P
     assert late.counts.started == 4 and late._refine_open()  # noqa: SLF001 - 4 of the 12 trials started
     late.spec = dataclasses.replace(spec, study=dataclasses.replace(untimed, n_trials=17))
     assert not late._refine_open()  # noqa: SLF001
+    # a crowd-prior study opens once its crowd settings are enqueued (the queue check then waits for each to start)
+    study.set_user_attr(f"{keys.WARM_STARTED}crowd", 3)
+    assert late._refine_open()  # noqa: SLF001
+    study.set_user_attr(f"{keys.WARM_STARTED}crowd", 0)  # none enqueued (none fit the space): refine_start holds
+    assert not late._refine_open()  # noqa: SLF001
     # no budget used, never shown to the sampler, never a race entrant
     driver._refresh_counts()  # noqa: SLF001
     refined = [t for t in study.trials if keys.REFINE_OF in t.user_attrs]

@@ -68,6 +68,14 @@ def test_refine_soups_is_checked() -> None:
             _spec(refine_share=0.5, refine_soups=bad)
     with pytest.raises(SpecError, match=r"\[study\] refine_soups: .*refine_share = 0"):
         _spec(refine_soups=[2])
+    assert _spec(refine_share=0.5).study.refine_soup_span == soup.SOUP_SPAN == 0.5
+    assert _spec(refine_share=0.5, refine_soups=[2], refine_soup_span=1).study.refine_soup_span == 1.0
+    for bad, message in ((0, "must be above 0, got 0.0"), (-1, r"-1 is out of range; use \[0, 100\]"),
+                         ("1", "must be a number")):  # fmt: skip
+        with pytest.raises(SpecError, match=rf"\[study\] refine_soup_span: {message}"):
+            _spec(refine_share=0.5, refine_soups=[2], refine_soup_span=bad)
+    with pytest.raises(SpecError, match=r"\[study\] refine_soup_span: .*refine_soups is empty.*set refine_soups"):
+        _spec(refine_share=0.5, refine_soup_span=1.0)
 
 
 def test_a_soup_trial_scores_its_net_officially_and_trains_nothing() -> None:
@@ -89,8 +97,8 @@ def test_the_driver_soups_a_parents_best_runs_before_its_next_run(tmp_path: Path
     the refinement runs', no predicted cost and no count against ``refine_runs``, and is a parent once it beats
     its own."""
     spec = _spec(race_configs=2, race_seeds=1, n_trials=20, timeout_s=3600, refine_share=0.5, refine_runs=3,
-                 refine_iterations=3000, refine_soups=[2]).with_overrides(storage=str(tmp_path / "j.log"),
-                                                                        workers=2)  # fmt: skip
+                 refine_iterations=3000, refine_soups=[2], refine_soup_span=0.6).with_overrides(
+                     storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
     driver, study, storages, dists, params = _driver_on_journal(spec)
     texts = [_net_text(seed) for seed in range(4)]
     study.add_trial(optuna.trial.create_trial(
@@ -109,7 +117,7 @@ def test_the_driver_soups_a_parents_best_runs_before_its_next_run(tmp_path: Path
     assert driver._launch_refine(0)  # noqa: SLF001 - one run: no pair to soup yet
     first = finish(73.5, texts[1])
     assert driver._launch_refine(0)  # noqa: SLF001
-    second = finish(73.8, texts[2])
+    second = finish(73.45, texts[2])  # within the study's refine_soup_span (0.6), not the default 0.5
     assert driver._launch_refine(0)  # noqa: SLF001 - two runs of trial 0: their soup
     made = study.trials[-1]
     assert made.user_attrs[keys.SOUP_OF] == [first.number, second.number]

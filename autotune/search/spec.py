@@ -6,7 +6,7 @@ Five tables, every key optional unless said otherwise::
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
-                  refine_runs, refine_start, refine_soups
+                  refine_runs, refine_start, refine_soups, refine_soup_span
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from autotune import OFFICIAL_PROTOCOL, TrainConfig
+from autotune.search.soup import SOUP_SPAN
 from sim import fields
 from sim.config import V1_NO_AGENTS, ConfigError, FieldValueError, check, check_other_agents, did_you_mean
 
@@ -251,11 +252,15 @@ class StudySection:
     back to the search."""
     refine_start: float = 0.0
     """Share of the study's budget — its time (``timeout_s``), else its trials (``n_trials``) — the search has to
-    itself before refinement starts (0: from the first stored net)."""
+    itself before refinement starts (0: from the first stored net); with the crowd prior, refinement starts once
+    the crowd's settings have all started."""
     refine_soups: tuple[int, ...] = ()
     """Sizes k of the weight soups scored from each parent's refinement runs (``autotune.search.soup``): whenever a
     parent's best k runs form a new set, a refinement worker scores the mean of their weights (no training); ()
     none."""
+    refine_soup_span: float = SOUP_SPAN
+    """mph below its parent's score within which a refinement run is a soup ingredient (a soup with two collapsed
+    runs among its 4 scored 73.37 against its parent's 75.29)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -694,9 +699,16 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         raise where.error("refine_soups", f"sizes must be distinct and in [2, 64], got {list(soups)!r}",
                           "e.g. refine_soups = [2, 4]")  # fmt: skip
     soups = tuple(soups)
+    span = _float(table.get("refine_soup_span", d.refine_soup_span), f"{src}: [study] refine_soup_span", 0.0, 100.0)
+    if span <= 0.0:
+        raise where.error("refine_soup_span", f"must be above 0, got {span}",
+                          "e.g. refine_soup_span = 0.5 (runs within half a mph of their parent)")  # fmt: skip
+    if not soups and span != d.refine_soup_span:
+        raise where.error("refine_soup_span", "sets the weight soups' ingredients, but refine_soups is empty",
+                          "set refine_soups (e.g. [2, 4]), or remove refine_soup_span")  # fmt: skip
     for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr),
                        ("refine_runs", refine_runs), ("refine_start", refine_start),
-                       ("refine_soups", soups)):  # fmt: skip
+                       ("refine_soups", soups), ("refine_soup_span", span)):  # fmt: skip
         if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
@@ -704,7 +716,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
-        intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups,
+        intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span,
     )  # fmt: skip
 
 

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import json
+import time
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +31,32 @@ def reference() -> Path:
     if not REFERENCE.is_dir():
         pytest.fail(f"reference data not found at {REFERENCE} (CI keeps ../shared beside the checkout)")
     return REFERENCE
+
+
+@dataclasses.dataclass(frozen=True)
+class SmokeLaunch:
+    """One ``autotune launch study_configs/smoke.toml`` run for real in ``cwd`` (its runs/ there)."""
+
+    cwd: Path
+    rc: int
+    out: str
+    err: str
+    tag: str
+    """``AUTOTUNE_TEST_TAG`` of every process it started."""
+    wall: float
+    """Seconds from the command's start to its exit."""
+
+
+@pytest.fixture(scope="session")
+def smoke_launch(tmp_path_factory: pytest.TempPathFactory) -> SmokeLaunch:
+    """The smoke study, launched once for the tests that read it (each copies what it changes): a launch costs
+    ~25 s of the 2-core CI machine's time."""
+    from tests.test_search_launch import SMOKE, finish, launch
+
+    cwd, tag = tmp_path_factory.mktemp("smoke-launch"), uuid.uuid4().hex
+    t0 = time.perf_counter()
+    rc, out, err = finish(launch(cwd, str(SMOKE), tag=tag))
+    return SmokeLaunch(cwd, rc, out, err, tag, time.perf_counter() - t0)
 
 
 class FakePool:

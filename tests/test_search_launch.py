@@ -23,6 +23,7 @@ import pytest
 
 from autotune import loads_net
 from autotune.cli import main
+from tests.conftest import SmokeLaunch
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "study_configs" / "smoke.toml"
@@ -136,11 +137,9 @@ def check_finished_trials(study: optuna.Study) -> None:
 
 
 # -- the smoke study ------------------------------------------------------------------------------
-def test_smoke_study_end_to_end(tmp_path: Path) -> None:
-    tag = uuid.uuid4().hex
-    t0 = time.perf_counter()
-    rc, out, err = finish(launch(tmp_path, str(SMOKE), tag=tag))
-    wall = time.perf_counter() - t0
+def test_smoke_study_end_to_end(smoke_launch: SmokeLaunch) -> None:
+    tmp_path, tag, rc, out, err, wall = (smoke_launch.cwd, smoke_launch.tag, smoke_launch.rc, smoke_launch.out,
+                                         smoke_launch.err, smoke_launch.wall)  # fmt: skip
     assert rc == 0, err[-3000:]
     assert "Traceback" not in err
     study = load(tmp_path, "smoke")

@@ -126,34 +126,13 @@ def test_ladder_study_races_the_best_configurations(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_the_race_starts_in_the_last_part_of_the_time(tmp_path: Path) -> None:
-    """With trials to spare, the race starts when the clock reaches the last race_fraction of timeout_s.
+def test_the_search_retrains_its_incumbent_then_races_in_the_last_part_of_the_time(tmp_path: Path) -> None:
+    """With trials to spare, the race starts when the clock reaches the last race_fraction of timeout_s; with
+    ``intensify_share``, race runs start before that window: the incumbent's, on the race's seeds (from index 0,
+    at its entry's configuration), one at a time on half of the 2 workers; the race then takes them as its own.
 
-    (Finished trials normally hand their worker the next draw at once; in the race window they must not.)
+    (Finished trials normally hand their worker the next draw at once; in the race's rounds they must not.)
     """
-    spec = tmp_path / "race.toml"
-    text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 90")
-    spec.write_text(text.replace('balance = ["method"]\n', ""))  # TPE's own draws, as before the balance
-    code, out, err = finish(launch(tmp_path, str(spec), tag="racet-" + tmp_path.name), timeout=400)
-    assert code == 0, err
-    study = load(tmp_path, "race")
-    trials = study.get_trials(deepcopy=False)
-    race = [t for t in trials if "race_of" in t.user_attrs]
-    assert study.user_attrs.get("race_field") and race, "no race in the last half of the study's time"
-    first_race = min(t.datetime_start for t in race if t.datetime_start is not None)
-    later = [t for t in trials if "race_of" not in t.user_attrs and t.datetime_start is not None
-             and t.datetime_start > first_race]  # fmt: skip
-    # once racing, no new draw starts until the race has started its last run: the halving's, or the winner's
-    # further seeds while its runs reach the study's best (then a worker may take a draw the time left affords)
-    last = max(t.datetime_start for t in race if t.datetime_start is not None)
-    assert all(t.datetime_start is not None and t.datetime_start >= last for t in later), [t.number for t in later]
-
-
-@pytest.mark.slow
-def test_the_search_retrains_its_incumbent_before_the_race(tmp_path: Path) -> None:
-    """With ``intensify_share``, race runs start before the race window: the incumbent's, on the race's seeds
-    (from index 0, at its entry's configuration), one at a time on half of the 2 workers; the race then takes
-    them as its own."""
     spec = tmp_path / "race.toml"
     text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 90")
     spec.write_text(text.replace("race_seeds = 1\n", "race_seeds = 1\nintensify_share = 0.5\n"))
@@ -176,6 +155,18 @@ def test_the_search_retrains_its_incumbent_before_the_race(tmp_path: Path) -> No
     # one at a time: the next starts as the last ends (its worker's next task, a moment before the result is told)
     assert all((a[1] - b[0]).total_seconds() < 2.0 for a, b in zip(spans, spans[1:], strict=False)), spans
     assert study.user_attrs.get("race_field"), "no race after the incumbent's runs"
+    # the race's own runs start in its window (the last half of the time, from the driver's start)
+    race = [t for t in trials if "race_of" in t.user_attrs and not t.user_attrs.get("incumbent_run")]
+    assert race, "no race in the last half of the study's time"
+    first_race = min(t.datetime_start for t in race if t.datetime_start is not None)
+    started = min(t.datetime_start for t in trials if t.datetime_start is not None)
+    assert (first_race - started).total_seconds() >= 0.5 * 90 - 15, (first_race, started)  # Ray's start: < 15 s
+    later = [t for t in trials if "race_of" not in t.user_attrs and t.datetime_start is not None
+             and t.datetime_start > first_race]  # fmt: skip
+    # once racing, no new draw starts until the race has started its last run: the halving's, or the winner's
+    # further seeds while its runs reach the study's best (then a worker may take a draw the time left affords)
+    last = max(t.datetime_start for t in race if t.datetime_start is not None)
+    assert all(t.datetime_start is not None and t.datetime_start >= last for t in later), [t.number for t in later]
     assert tagged_processes("raci-" + tmp_path.name) == []
 
 
@@ -197,7 +188,8 @@ def test_refinement_runs_train_on_from_the_best_net_and_retrain_exactly(tmp_path
     from autotune.search.storage import open_storage
 
     spec = tmp_path / "race.toml"
-    text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 75")
+    text = SPEC.replace("n_trials = 5", "n_trials = 1000").replace("timeout_s = 240", "timeout_s = 60")
+    text = text.replace("race_fraction = 0.5", "race_fraction = 0.2")  # refinement waits out the race's rounds
     spec.write_text(
         text.replace(
             "race_seeds = 1\n",

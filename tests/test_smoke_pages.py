@@ -1,19 +1,21 @@
 """Issue 9's end-to-end check: the smoke study, launched for real, gives a report and a replay page that render.
 
-`autotune launch study_configs/smoke.toml` (real Ray, embedded journal), then `autotune crowd import`,
+`autotune launch study_configs/smoke.toml` (real Ray, embedded journal; the session's one launch, the
+``smoke_launch`` fixture, copied), then `autotune crowd import`,
 `autotune compare` and `autotune replay` on that study; both pages open in headless Chromium, which
 fails the test on any console error, any figure without traces and any trace without data points.
 """
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
-import uuid
 from pathlib import Path
 
 from tests.browser import assert_page_ok, require_browser
-from tests.test_search_launch import SMOKE, check_finished_trials, finish, launch, load, tagged_processes
+from tests.conftest import SmokeLaunch
+from tests.test_search_launch import check_finished_trials, load, tagged_processes
 
 
 def _autotune(cwd: Path, *args: str) -> str:
@@ -24,15 +26,14 @@ def _autotune(cwd: Path, *args: str) -> str:
     return done.stdout
 
 
-def test_smoke_study_report_and_replay_render(tmp_path: Path) -> None:
+def test_smoke_study_report_and_replay_render(smoke_launch: SmokeLaunch, tmp_path: Path) -> None:
     require_browser()
-    tag = uuid.uuid4().hex
-    rc, out, err = finish(launch(tmp_path, str(SMOKE), tag=tag))
-    assert rc == 0, (out, err)
+    assert smoke_launch.rc == 0, (smoke_launch.out, smoke_launch.err)
+    shutil.copytree(smoke_launch.cwd / "runs", tmp_path / "runs")  # the crowd import below writes beside it
     study = load(tmp_path, "smoke")
     check_finished_trials(study)
     assert study.best_value > 0
-    assert not tagged_processes(tag)
+    assert not tagged_processes(smoke_launch.tag)
 
     _autotune(tmp_path, "crowd", "import")
     report = tmp_path / "report.html"

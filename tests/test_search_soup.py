@@ -70,10 +70,11 @@ def test_refine_soups_is_checked() -> None:
         _spec(refine_soups=[2])
     assert _spec(refine_share=0.5).study.refine_soup_span == soup.SOUP_SPAN == 0.5
     assert _spec(refine_share=0.5, refine_soups=[2], refine_soup_span=1).study.refine_soup_span == 1.0
-    for bad, message in ((0, "must be above 0, got 0.0"), (-1, r"-1 is out of range; use \[0, 100\]"),
-                         ("1", "must be a number")):  # fmt: skip
+    spans: tuple[tuple[object, str], ...] = ((0, "must be above 0, got 0.0"), ("1", "must be a number"),
+                                             (-1, r"-1 is out of range; use \[0, 100\]"))  # fmt: skip
+    for span, message in spans:
         with pytest.raises(SpecError, match=rf"\[study\] refine_soup_span: {message}"):
-            _spec(refine_share=0.5, refine_soups=[2], refine_soup_span=bad)
+            _spec(refine_share=0.5, refine_soups=[2], refine_soup_span=span)
     with pytest.raises(SpecError, match=r"\[study\] refine_soup_span: .*refine_soups is empty.*set refine_soups"):
         _spec(refine_share=0.5, refine_soup_span=1.0)
 

@@ -4,32 +4,26 @@ from __future__ import annotations
 
 import importlib.util
 import sys
-from pathlib import Path
 from typing import Any
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.conftest import ROOT
 
-
-def _tool() -> Any:
-    spec = importlib.util.spec_from_file_location("warm_compile", ROOT / "tools" / "warm_compile.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["warm_compile"] = module
-    spec.loader.exec_module(module)
-    return module
+_SPEC = importlib.util.spec_from_file_location("warm_compile", ROOT / "tools" / "warm_compile.py")
+assert _SPEC is not None and _SPEC.loader is not None
+wc: Any = sys.modules.setdefault("warm_compile", importlib.util.module_from_spec(_SPEC))
+_SPEC.loader.exec_module(wc)
 
 
 def test_it_runs_each_engines_compiled_paths(capsys: pytest.CaptureFixture[str]) -> None:
-    tool = _tool()
-    assert tool.main(["--ruleset", "v1"]) == 0  # loaded from the cache CI's run of it filled
+    assert wc.main(["--ruleset", "v1"]) == 0  # loaded from the cache CI's run of it filled
     assert capsys.readouterr().out.startswith("v1: compiled or loaded in ")
 
 
 def test_a_bad_ruleset_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
-        _tool().main(["--ruleset", "v3"])
+        wc.main(["--ruleset", "v3"])
     assert exc.value.code == 2 and "invalid choice: 'v3'" in capsys.readouterr().err
 
 

@@ -1,6 +1,6 @@
 """Compile the numba kernels into numba's on-disk cache once, before anything needs them.
 
-    python tools/warm_compile.py          # both engines (~2–3 min on a cold cache, ~10 s warm)
+    python tools/warm_compile.py          # both engines (~65–80 s on a cold cache, a few s warm)
     python tools/warm_compile.py --ruleset v2
 
 Why: every kernel is cached on disk (``cache=True``), keyed on the compiled sources (``sim.numba_cache_key``);

@@ -63,7 +63,7 @@ from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
 from autotune.convnet.netjson import dumps_net, loads_net
-from autotune.search import keys, racing, refine, soup, space
+from autotune.search import ensemble, keys, racing, refine, soup, space
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
 from autotune.search.denoise import DenoisedSampler
@@ -147,6 +147,12 @@ Progress = Callable[[StudyCounts], None]
 RACE_MARGIN = 1.25
 """A race run is planned where its predicted seconds × this fit the time left: the cost model's median error is
 10–35 % in the benchmark studies, and a race run the deadline stops scores nothing."""
+
+SEED_SOUP_REACH = 1.0
+"""mph below the study's best net within which a linear configuration's seeds are souped: a soup of seeds scored up to
+0.44 above its best one (75.25 → 75.69)."""
+SEED_SOUP_MIN_LEFT_S = 20.0
+"""No seed soup starts with fewer seconds left: its official evaluation takes 2–10 s on one core."""
 
 
 def trial_seed(study_seed: int, number: int) -> int:
@@ -279,6 +285,8 @@ class _Running:
     """A race run the search started before the race (``_launch_incumbent``)."""
     refine: bool = False
     """A refinement run (``_launch_refine``)."""
+    ensemble: bool = False
+    """A fresh seed of a linear configuration for its seed soups (``_launch_seed_run``), on a refinement worker."""
 
 
 class Driver:
@@ -798,10 +806,12 @@ class Driver:
         st = self.spec.study
         if st.refine_share <= 0.0 or (self._race_window() and not self._race_over):
             return False
-        if not self._side_slot_free(st.refine_share, sum(r.refine for r in self._running.values())):
+        if not self._side_slot_free(st.refine_share, sum(r.refine or r.ensemble for r in self._running.values())):
             return False
         if not self._refine_open():
             return False
+        if st.seed_soup_runs and self._launch_seed_run(slot):
+            return True
         trials = self.study.get_trials(deepcopy=False)
         refine_ofs = [  # the training runs: a soup trains nothing, and uses neither a net's runs nor a seed
             t.user_attrs.get(keys.REFINE_OF) if not {keys.RETRY_OF, keys.SOUP_OF} & t.user_attrs.keys() else None
@@ -821,7 +831,9 @@ class Driver:
         trained = top if parent.budget is None else trained_rung_config(top, parent.budget, rungs)
         # a refinement run's config already has the scaled rate: its children keep it (× 0.1 a generation froze
         # the climbs of a cold study: 1.9e-9 → 1.9e-11 in two steps)
-        rate = 1.0 if refine.is_refinement(source.user_attrs) else st.refine_learning_rate
+        # (a seed soup's config is its best ingredient's, a fresh training's: its children take the scaled rate)
+        scaled = refine.is_refinement(source.user_attrs) and keys.SEED_SOUP_OF not in source.user_attrs
+        rate = 1.0 if scaled else st.refine_learning_rate
         config = refine.refine_config(trained, st.refine_iterations, rate).to_mapping()
         if self._race_cost(config) * RACE_MARGIN > self._time_left():
             return False
@@ -854,6 +866,84 @@ class Driver:
         first = trials[ingredients[0]]
         self.study.enqueue_trial(dict(first.params), user_attrs={
             keys.CONFIG: first.user_attrs[keys.CONFIG], keys.REFINE_OF: mine, keys.SOUP_OF: list(ingredients),
+        })  # fmt: skip
+        return self._launch_next(slot)
+
+    def _launch_seed_soup(self, slot: int) -> bool:
+        """Score the next seed soup of a linear configuration on ``slot`` (``ensemble.next_seed_soup`` over ``[study]
+        seed_soups``: its nets within ``refine_soup_span`` of its best, configurations within ``SEED_SOUP_REACH`` of the
+        study's best net); False when there is none, the queue comes first, or the deadline is near.
+
+        The soup is a refinement trial of its configuration's best net (``refine_of``: a soup that beats it is a
+        parent like any refinement run that did), with ``soup_of`` its ingredients and ``seed_soup_of`` the
+        configuration's selecting trial."""
+        assert self.study is not None
+        st = self.spec.study
+        if not st.seed_soups or self._time_left() < SEED_SOUP_MIN_LEFT_S:
+            return False
+        if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+            return False
+        trials = self.study.get_trials(deepcopy=False)
+        groups = ensemble.seed_nets((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials)
+        if not any(len(nets) > 1 for nets in groups.values()):
+            return False
+        tried: dict[int, list[list[int]]] = {}
+        for t in trials:
+            owner = t.user_attrs.get(keys.SEED_SOUP_OF)
+            if owner is not None and keys.RETRY_OF not in t.user_attrs:
+                tried.setdefault(int(owner), []).append(list(t.user_attrs.get(keys.SOUP_OF) or ()))
+        pick = ensemble.next_seed_soup(
+            groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials), SEED_SOUP_REACH
+        )  # fmt: skip
+        if pick is None:
+            return False
+        owner, ingredients = pick
+        number, score = max(groups[owner], key=lambda r: (r[1], -r[0]))
+        best = trials[number]
+        self.study.enqueue_trial(dict(best.params), user_attrs={
+            keys.CONFIG: best.user_attrs[keys.CONFIG], keys.REFINE_OF: refine.Parent(number, None, score).to_attr(),
+            keys.SOUP_OF: list(ingredients), keys.SEED_SOUP_OF: owner,
+        })  # fmt: skip
+        return self._launch_next(slot)
+
+    def _launch_seed_run(self, slot: int) -> bool:
+        """Start a fresh seed of a linear configuration near the study's best on ``slot``, for its seed soups
+        (``ensemble.next_seed_run``, up to ``[study] seed_soup_runs`` seeds): a race run before the race, on the
+        race's seeds, so the race counts it. The caller (``_launch_refine``) has checked the refinement's share."""
+        assert self.study is not None
+        st = self.spec.study
+        trials = self.study.get_trials(deepcopy=False)
+        entries = {}
+        for t in trials:
+            if not _original(t) or t.state not in (TrialState.COMPLETE, TrialState.PRUNED):
+                continue
+            entry = race_entry(t, self.spec.race_min_budget)
+            if entry is not None and ensemble.is_linear(entry[2]):
+                entries[t.number] = entry
+        if not entries:
+            return False
+        candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))
+        level: dict[int, float] = {}
+        groups = ensemble.seed_nets((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials)
+        for owner, nets in groups.items():
+            level[owner] = max(s for _, s in nets)
+        for t in trials:
+            of = t.user_attrs.get(keys.SEED_SOUP_OF)
+            if of is not None and t.state == TrialState.COMPLETE and t.value is not None:
+                level[int(of)] = max(level.get(int(of), -math.inf), float(t.value))
+        _results, launched = self._race_results()
+        run = ensemble.next_seed_run(
+            candidates, launched, level, _best_score(trials), refine.PARENT_SPAN, st.seed_soup_runs
+        )  # fmt: skip
+        if run is None:
+            return False
+        config = entries[run.race_of][2]
+        if self._race_cost(config) * RACE_MARGIN > self._time_left():
+            return False
+        source = trials[run.race_of]
+        self.study.enqueue_trial(dict(source.params), user_attrs={
+            keys.CONFIG: config, keys.SEED: racing.race_seed(st.seed, run.seed_index), keys.RACE_OF: run.race_of,
+            keys.RACE_SEED: run.seed_index, keys.SEED_SOUP_RUN: True,
         })  # fmt: skip
         return self._launch_next(slot)
 
@@ -1015,6 +1105,8 @@ class Driver:
         while True:
             if not self._out_of_time():
                 for slot in self.pool.idle_slots(set(self._running)):
+                    if self._launch_seed_soup(slot):
+                        continue  # seconds of evaluation: before the race's runs and the search's
                     if self._race_window():
                         if self._launch_race(slot) or not self._race_over:
                             continue  # started a race run, or a round is still running: keep the slot for it
@@ -1167,7 +1259,8 @@ class Driver:
         trial.set_user_attr(keys.RAY_NODE, self.pool.node_of(slot))
         self._running[slot] = _Running(trial, trial_id, slot, task, silent=race, sampled=not given,
                                        incumbent=bool(trial.user_attrs.get(keys.INCUMBENT_RUN)),
-                                       refine=refine_of is not None)  # fmt: skip
+                                       refine=refine_of is not None,
+                                       ensemble=bool(trial.user_attrs.get(keys.SEED_SOUP_RUN)))  # fmt: skip
         self.pool.submit(slot, task)
         self._notify()
         return True
@@ -1191,7 +1284,7 @@ class Driver:
             if wall is not None:
                 self._cheapest_gated_s = wall if self._cheapest_gated_s == 0.0 else min(self._cheapest_gated_s, wall)
         if (event.kind == "done" and not self._out_of_time() and not self._race_window() and not run.incumbent
-                and not run.refine):  # fmt: skip
+                and not run.refine and not run.ensemble):  # fmt: skip
             # the worker starts its next trial before this one's storage writes (in the race window the loop
             # starts race runs instead, once this trial's result is stored: it may be an entrant; after an
             # incumbent's or a refinement run too: its score decides the next one)

@@ -6,7 +6,7 @@ Five tables, every key optional unless said otherwise::
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
-                  refine_runs, refine_start, refine_soups, refine_soup_span
+                  refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_runs
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -260,7 +260,14 @@ class StudySection:
     none."""
     refine_soup_span: float = SOUP_SPAN
     """mph below its parent's score within which a refinement run is a soup ingredient (a soup with two collapsed
-    runs among its 4 scored 73.37 against its parent's 75.29)."""
+    runs among its 4 scored 73.37 against its parent's 75.29); of a seed soup, below its configuration's best net."""
+    seed_soups: tuple[int, ...] = ()
+    """Sizes k of the seed soups of each configuration without hidden layers (``autotune.search.ensemble``): whenever
+    its best k fresh-seed nets form a new set, any free worker scores the mean of their weights — exactly their
+    Q-values' mean — with no training; () none."""
+    seed_soup_runs: int = 0
+    """With seed_soups and refine_share: the most fresh seeds a linear configuration near the study's best gets on
+    the refinement's workers before the race, for its soups (0: only the race's)."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -688,27 +695,25 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
                           "e.g. refine_learning_rate = 0.1 (a tenth of the best net's own)")  # fmt: skip
     refine_runs = _int(table.get("refine_runs", d.refine_runs), f"{src}: [study] refine_runs", 0, 1_000_000)
     refine_start = _float(table.get("refine_start", d.refine_start), f"{src}: [study] refine_start", 0.0, 0.99)
-    soups = table.get("refine_soups", list(d.refine_soups))
-    if not isinstance(soups, (list, tuple)) or not all(isinstance(k, int) and not isinstance(k, bool) for k in soups):
-        raise where.error(
-            "refine_soups",
-            f"must be a list of integers, got {soups!r}",
-            "e.g. refine_soups = [2, 4] (soups of a parent's best 2 and best 4 runs), or [] for none",
-        )
-    if any(not 2 <= k <= 64 for k in soups) or len(set(soups)) != len(soups):
-        raise where.error("refine_soups", f"sizes must be distinct and in [2, 64], got {list(soups)!r}",
-                          "e.g. refine_soups = [2, 4]")  # fmt: skip
-    soups = tuple(soups)
+    soups = _soup_sizes(table.get("refine_soups", list(d.refine_soups)), where, "refine_soups",
+                        "soups of a parent's best 2 and best 4 runs")  # fmt: skip
     span = _float(table.get("refine_soup_span", d.refine_soup_span), f"{src}: [study] refine_soup_span", 0.0, 100.0)
     if span <= 0.0:
         raise where.error("refine_soup_span", f"must be above 0, got {span}",
                           "e.g. refine_soup_span = 0.5 (runs within half a mph of their parent)")  # fmt: skip
-    if not soups and span != d.refine_soup_span:
-        raise where.error("refine_soup_span", "sets the weight soups' ingredients, but refine_soups is empty",
-                          "set refine_soups (e.g. [2, 4]), or remove refine_soup_span")  # fmt: skip
+    seed_soups = _soup_sizes(table.get("seed_soups", list(d.seed_soups)), where, "seed_soups",
+                             "soups of a linear configuration's best 2 and best 3 seeds")  # fmt: skip
+    if not soups and not seed_soups and span != d.refine_soup_span:
+        raise where.error("refine_soup_span", "sets the weight soups' ingredients, but refine_soups and seed_soups "
+                          "are empty", "set refine_soups (e.g. [2, 4]), or remove refine_soup_span")  # fmt: skip
+    seed_runs = _int(table.get("seed_soup_runs", d.seed_soup_runs), f"{src}: [study] seed_soup_runs", 0, 1_000)
+    if seed_runs and not seed_soups:
+        raise where.error("seed_soup_runs", "trains seeds for the seed soups, but seed_soups is empty",
+                          "set seed_soups (e.g. [2, 3, 4]), or remove seed_soup_runs")  # fmt: skip
     for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr),
                        ("refine_runs", refine_runs), ("refine_start", refine_start),
-                       ("refine_soups", soups), ("refine_soup_span", span)):  # fmt: skip
+                       ("refine_soups", soups), ("refine_soup_span", span if not seed_soups else d.refine_soup_span),
+                       ("seed_soup_runs", seed_runs)):  # fmt: skip
         if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
@@ -716,8 +721,19 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
-        intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span,
+        intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
+        seed_runs,
     )  # fmt: skip
+
+
+def _soup_sizes(sizes: Any, where: _Where, key: str, example: str) -> tuple[int, ...]:
+    """[study] ``key``: soup sizes, distinct integers in [2, 64] (``[]``: none)."""
+    if not isinstance(sizes, (list, tuple)) or not all(isinstance(k, int) and not isinstance(k, bool) for k in sizes):
+        raise where.error(key, f"must be a list of integers, got {sizes!r}", f"e.g. {key} = [2, 4] ({example}), or [] "
+                          "for none")  # fmt: skip
+    if any(not 2 <= k <= 64 for k in sizes) or len(set(sizes)) != len(sizes):
+        raise where.error(key, f"sizes must be distinct and in [2, 64], got {list(sizes)!r}", f"e.g. {key} = [2, 4]")
+    return tuple(sizes)
 
 
 def _parse_ladder(

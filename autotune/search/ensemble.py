@@ -1,0 +1,118 @@
+"""Seed soups: the nets a configuration without hidden layers trained from different seeds, averaged into one net.
+
+A net with no hidden layer computes Q(s, ·) = W·x(s) + b, so the mean of k such nets' weights computes the mean of
+their Q-values exactly: the soup *is* the ensemble of its k trainings, in one convnetjs net the page loads. A hidden
+layer breaks this — independent trainings order their units differently, so their mean mixes unrelated units —
+which is why refinement soups (``autotune.search.soup``) only average runs of one parent. Measured on a crowd-prior
+hour's race winner (study seed 0; a linear adagrad net on 4 lanes a side, 7 patches ahead, 6 behind; 19 fresh
+seeds at 270k, best 75.25, 75.16, 75.05, 75.03, …): the soups of its best 2, 3, 4, 6 and 8 scored 75.54, 75.69,
+75.54, 75.56 and 75.51 (on 500 unseen runs 75.82, 75.89, 75.78, 75.82, 75.81, where its best run scored 75.39),
+while the study's refinement of its best hidden-layer net had stalled at 75.38; the soup of all 19, down to 73.64,
+75.20: ingredients come from within ``[study] refine_soup_span`` of the configuration's best net.
+
+Two rules, both pure functions of the study's trials:
+
+* ``next_seed_soup``: whenever a linear configuration's best k nets (``[study] seed_soups`` = the sizes k) form a
+  set no soup of it had, its soup is scored — an evaluation, no training (seconds), on any free worker.
+* ``next_seed_run``: before the race, a linear configuration whose best net or soup is within
+  ``refine.PARENT_SPAN`` of the study's best gets fresh seeds — the race's (``racing.race_seed``), so they count
+  in its race — on the refinement's workers, up to ``[study] seed_soup_runs``: a single training of one is
+  seldom the study's best net, but its soups are.
+
+A configuration's nets are its selecting trial's value and its race runs' (``race_of`` it): one training each.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from autotune.learner.config import parse_layers
+from autotune.search import keys
+from autotune.search.racing import Entrant, RaceRun
+from autotune.search.soup import next_soup
+from sim.config import ConfigError
+
+__all__ = ["SeedSoup", "is_linear", "seed_nets", "next_seed_soup", "next_seed_run"]
+
+SeedSoup = tuple[int, tuple[int, ...]]
+"""(configuration's trial number, ingredients: trial numbers ascending) of a seed soup to score."""
+
+
+def is_linear(config: Mapping[str, Any] | None) -> bool:
+    """Whether a stored config (``keys.CONFIG``) has no hidden layer: its net's Q-values are affine in its inputs."""
+    if not isinstance(config, Mapping):
+        return False
+    try:
+        return not parse_layers(config.get("layers", ""))
+    except ConfigError:
+        return False
+
+
+Trials = Iterable[tuple[int, Mapping[str, Any], float | None, bool]]
+"""(number, user attrs, value, COMPLETE?) of a study's trials."""
+
+
+def seed_nets(trials: Trials) -> dict[int, list[tuple[int, float]]]:
+    """The fresh-seed nets of each linear configuration among ``trials`` (number, user attrs, value, COMPLETE?): its
+    selecting trial's value and its race runs' — COMPLETE, with a stored net — keyed by the selecting trial's
+    number, as (trial number, score). Refinement runs and soups, retries and copied history are none of them."""
+    groups: dict[int, list[tuple[int, float]]] = {}
+    for number, attrs, value, complete in trials:
+        if not complete or value is None or not attrs.get(keys.ARTIFACT_NET_JSON):
+            continue
+        if not is_linear(attrs.get(keys.CONFIG)):
+            continue
+        if any(k in attrs for k in (keys.REFINE_OF, keys.SOUP_OF, keys.RETRY_OF, keys.COPIED_FROM)):
+            continue
+        owner = int(attrs[keys.RACE_OF]) if keys.RACE_OF in attrs else number
+        groups.setdefault(owner, []).append((number, float(value)))
+    return groups
+
+
+def next_seed_soup(
+    groups: Mapping[int, Sequence[tuple[int, float]]],
+    tried: Mapping[int, Iterable[Iterable[int]]],
+    sizes: Sequence[int],
+    span: float,
+    best: float | None,
+    reach: float,
+) -> SeedSoup | None:
+    """The next seed soup to score, or None: over the configurations of ``groups`` (``seed_nets``) whose best net is
+    within ``reach`` mph of the study's ``best`` net, best first, the first whose best k nets (k in ``sizes``, in
+    order; nets within ``span`` mph of its best) form a set none of its soups (``tried``: ingredient sets by
+    configuration) had."""
+    order = sorted(groups.items(), key=lambda g: (-max(s for _, s in g[1]), g[0]))
+    for owner, nets in order:
+        top = max(s for _, s in nets)
+        if best is not None and top < best - reach:
+            break
+        ingredients = next_soup(nets, sizes, tried.get(owner, ()), top - span)
+        if ingredients is not None:
+            return owner, ingredients
+    return None
+
+
+def next_seed_run(
+    candidates: Sequence[Entrant],
+    launched: Iterable[tuple[int, int]],
+    level: Mapping[int, float],
+    best: float | None,
+    reach: float,
+    max_runs: int,
+) -> RaceRun | None:
+    """The next fresh-seed run for a linear configuration's soups, or None: the first of ``candidates`` (the race's
+    possible entrants, best first, linear ones only) whose ``level`` (its best net or seed soup; else its entrant
+    score) is within ``reach`` mph of the study's ``best`` net and that started fewer than ``max_runs`` race seeds
+    (``launched``: (race_of, seed index) of every race run so far); its next seed is the first index it has not
+    started (the race's seeds, so the race reuses them)."""
+    started = set(launched)
+    for e in candidates:
+        mine = {s for (n, s) in started if n == e.number}
+        if len(mine) >= max_runs:
+            continue
+        if best is not None and level.get(e.number, e.value) < best - reach:
+            continue
+        return RaceRun(e.number, next(i for i in itertools.count() if i not in mine))
+    return None

@@ -1,0 +1,167 @@
+"""Seed soups (``[study] seed_soups``, ``seed_soup_runs``): a linear configuration's fresh-seed nets averaged.
+
+Why it is exact for linear nets (and not for others), the grouping and the two choices as pure rules, the spec keys,
+and the driver on a journal study: which soup it scores, what the soup records, the fresh seeds it trains for it."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import pytest
+
+from autotune.convnet.forward import forward
+from autotune.convnet.netjson import dumps_net, loads_net
+from autotune.learner.training import train
+from autotune.search import ensemble, keys, racing, refine, soup
+from autotune.search.racing import Entrant, RaceRun
+from autotune.search.spec import SpecError
+from tests.conftest import FakePool
+from tests.test_search_ladder import TINY, _driver_on_journal, _spec
+from tests.test_search_refine import _upload
+
+COMPLETE = optuna.trial.TrialState.COMPLETE
+LINEAR = TINY.replace(layers="")
+
+
+def _linear_text(seed: int) -> str:
+    return dumps_net(train(LINEAR.replace(train_iterations=0), seed=seed, quick_eval=False).convnet())
+
+
+def test_a_soup_of_linear_nets_is_the_mean_of_their_q_values_and_of_hidden_ones_is_not() -> None:
+    linear = [loads_net(_linear_text(seed)) for seed in range(3)]
+    xs = np.random.default_rng(0).normal(size=(16, linear[0].input_size))
+    mean = soup.average_nets(linear)
+    for x in xs:
+        expected = np.mean([forward(n, x) for n in linear], axis=0)
+        np.testing.assert_allclose(forward(mean, x), expected, rtol=0, atol=1e-12)
+    hidden = [loads_net(dumps_net(train(TINY.replace(train_iterations=0), seed=s, quick_eval=False).convnet()))
+              for s in range(3)]  # fmt: skip
+    xh = np.random.default_rng(1).normal(size=hidden[0].input_size)
+    gap = np.abs(forward(soup.average_nets(hidden), xh) - np.mean([forward(n, xh) for n in hidden], axis=0))
+    assert gap.max() > 1e-6  # a hidden layer: the soup is not the ensemble
+    assert ensemble.is_linear(LINEAR.to_mapping()) and not ensemble.is_linear(TINY.to_mapping())
+    assert not ensemble.is_linear(None) and not ensemble.is_linear({"layers": "fc:x"})
+
+
+def _attrs(config: Any = None, **more: Any) -> dict[str, Any]:
+    return {keys.CONFIG: (LINEAR if config is None else config).to_mapping(), keys.ARTIFACT_NET_JSON: "id", **more}
+
+
+def test_seed_nets_are_a_linear_configurations_value_and_its_race_runs() -> None:
+    trials = [
+        (0, _attrs(), 74.0, True),
+        (1, _attrs(**{keys.RACE_OF: 0, keys.RACE_SEED: 0}), 74.5, True),
+        (2, _attrs(TINY), 75.0, True),  # hidden layers: none
+        (3, _attrs(**{keys.RACE_OF: 0, keys.RACE_SEED: 1}), None, False),  # unfinished
+        (4, _attrs(**{keys.REFINE_OF: {"trial": 0, "budget": None, "score": 74.0}}), 74.8, True),
+        (5, _attrs(**{keys.RACE_OF: 0, keys.RACE_SEED: 2, keys.RETRY_OF: 3}), 73.0, True),
+        (6, {keys.CONFIG: LINEAR.to_mapping(), keys.RACE_OF: 0, keys.RACE_SEED: 3}, 73.5, True),  # no stored net
+        (7, _attrs(), 72.0, True),
+        (8, _attrs(), 71.0, False),  # pruned: its value is no net
+    ]
+    assert ensemble.seed_nets(trials) == {0: [(0, 74.0), (1, 74.5)], 7: [(7, 72.0)]}
+
+
+def test_the_next_seed_soup_is_the_best_k_seeds_of_the_best_configuration_near_the_best_net() -> None:
+    groups = {0: [(0, 74.0), (1, 74.5), (2, 74.3), (3, 73.0)], 5: [(5, 74.9), (6, 74.8)], 9: [(9, 72.0), (10, 71.9)]}
+    assert ensemble.next_seed_soup(groups, {}, (2, 3), 0.5, 75.0, 1.0) == (5, (5, 6))
+    tried = {5: [[5, 6]]}
+    assert ensemble.next_seed_soup(groups, tried, (2, 3), 0.5, 75.0, 1.0) == (0, (1, 2))  # 5 has no 3 seeds
+    tried[0] = [[1, 2]]
+    assert ensemble.next_seed_soup(groups, tried, (2, 3), 0.5, 75.0, 1.0) == (0, (0, 1, 2))
+    tried[0].append([0, 1, 2])  # 73.0 is over the span below 74.5: no soup of 4, and 9 is over 1 mph below 75
+    assert ensemble.next_seed_soup(groups, tried, (2, 3, 4), 0.5, 75.0, 1.0) is None
+    assert ensemble.next_seed_soup(groups, tried, (2, 3, 4), 2.0, 75.0, 1.0) == (0, (0, 1, 2, 3))
+    assert ensemble.next_seed_soup(groups, tried, (2,), 0.5, 75.0, 5.0) == (9, (9, 10))
+    assert ensemble.next_seed_soup(groups, tried, (2,), 0.5, None, 1.0) == (9, (9, 10))
+
+
+def test_the_next_seed_run_is_the_first_linear_candidate_near_the_best_with_seeds_left() -> None:
+    a, b = Entrant(3, 74.9, "a"), Entrant(8, 74.2, "b")
+    assert ensemble.next_seed_run([a, b], [], {}, 75.0, 0.5, 2) == RaceRun(3, 0)
+    assert ensemble.next_seed_run([a, b], [(3, 0), (3, 1)], {}, 75.0, 0.5, 2) is None  # b is 0.8 below the best
+    assert ensemble.next_seed_run([a, b], [(3, 0), (3, 1)], {8: 74.7}, 75.0, 0.5, 2) == RaceRun(8, 0)  # its soup
+    assert ensemble.next_seed_run([a, b], [(3, 1)], {3: 74.0, 8: 74.6}, 75.0, 0.5, 4) == RaceRun(8, 0)
+    assert ensemble.next_seed_run([a], [(3, 1)], {3: 75.2}, 75.2, 0.5, 4) == RaceRun(3, 0)  # the first free index
+    assert ensemble.next_seed_run([a], [(3, 1)], {3: 74.0}, 75.2, 0.5, 4) is None  # its seeds trail the best
+    assert ensemble.next_seed_run([b], [], {}, None, 0.5, 1) == RaceRun(8, 0)
+
+
+def test_seed_soups_and_seed_soup_runs_are_checked() -> None:
+    assert _spec().study.seed_soups == () and _spec().study.seed_soup_runs == 0
+    assert _spec(seed_soups=[2, 3]).study.seed_soups == (2, 3)  # evaluations only: no refinement needed
+    assert _spec(seed_soups=[2], refine_soup_span=1.0).study.refine_soup_span == 1.0
+    with pytest.raises(SpecError, match=r"\[study\] seed_soups: sizes must be distinct and in \[2, 64\], got \[1\]"):
+        _spec(seed_soups=[1])
+    with pytest.raises(SpecError, match=r"\[study\] seed_soups: must be a list of integers, got 'x'"):
+        _spec(seed_soups="x")
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_runs: .*seed_soups is empty.*set seed_soups"):
+        _spec(refine_share=0.5, seed_soup_runs=4)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_runs: .*refine_share = 0"):
+        _spec(seed_soups=[2], seed_soup_runs=4)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_runs: -1 is out of range"):
+        _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=-1)
+    assert _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=4).study.seed_soup_runs == 4
+
+
+def test_the_driver_trains_seeds_of_a_linear_configuration_and_soups_them(tmp_path: Path) -> None:
+    """``_launch_refine`` first trains fresh race seeds of a linear configuration within ``refine.PARENT_SPAN`` of the
+    study's best net (up to ``seed_soup_runs``); ``_launch_seed_soup`` then scores the soup of its best seeds on any
+    slot: a refinement trial of its best net, ``soup_of`` the seeds, ``seed_soup_of`` the configuration. A soup that
+    is the best net is refined at the refinement's rate (its config is a fresh training's)."""
+    spec = _spec(race_configs=2, race_seeds=1, n_trials=20, timeout_s=3600, refine_share=0.5, refine_runs=3,
+                 refine_iterations=3000, seed_soups=[2], seed_soup_runs=2).with_overrides(
+                     storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    texts = [_linear_text(seed) for seed in range(3)]
+    config = LINEAR.replace(train_iterations=1200).to_mapping()
+    study.add_trial(optuna.trial.create_trial(
+        params=params, distributions=dists, value=74.0, state=COMPLETE,
+        user_attrs={keys.CONFIG: config, keys.ARTIFACT_NET_JSON: _upload(storages, study, texts[0]),
+                    keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: 74.0}]},
+    ))  # fmt: skip
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert not driver._launch_seed_soup(1)  # noqa: SLF001 - one net: nothing to soup
+
+    def finish(value: float, text: str) -> Any:
+        run = driver._running.pop(0).trial  # noqa: SLF001
+        run.set_user_attr(keys.ARTIFACT_NET_JSON, _upload(storages, study, text))
+        study.tell(run, value)
+        return study.trials[run.number]
+
+    assert driver._launch_refine(0)  # noqa: SLF001 - a fresh seed of the linear configuration, not a refinement
+    seed_run = study.trials[-1]
+    assert seed_run.user_attrs[keys.RACE_OF] == 0 and seed_run.user_attrs[keys.RACE_SEED] == 0
+    assert seed_run.user_attrs[keys.SEED] == racing.race_seed(spec.study.seed, 0)
+    assert seed_run.user_attrs[keys.SEED_SOUP_RUN] is True and keys.REFINE_OF not in seed_run.user_attrs
+    assert driver._running[0].ensemble and not driver.pool.tasks[-1].init_net  # noqa: SLF001
+    assert not driver._launch_refine(1)  # noqa: SLF001 - the refinement's share (one of 2) is busy
+    first = finish(73.8, texts[1])
+    assert driver._launch_seed_soup(1)  # noqa: SLF001
+    made = study.trials[-1]
+    assert made.user_attrs[keys.SOUP_OF] == [0, first.number] and made.user_attrs[keys.SEED_SOUP_OF] == 0
+    assert made.user_attrs[keys.REFINE_OF] == {"trial": 0, "budget": None, "score": 74.0}
+    task = driver.pool.tasks[-1]
+    assert task.evaluate_only and task.init_net == dumps_net(soup.average_nets([loads_net(texts[0]),
+                                                                                loads_net(texts[1])]))  # fmt: skip
+    run = driver._running.pop(1).trial  # noqa: SLF001
+    run.set_user_attr(keys.ARTIFACT_NET_JSON, _upload(storages, study, task.init_net))
+    study.tell(run, 74.6)
+    assert not driver._launch_seed_soup(1)  # noqa: SLF001 - that set had its soup
+    assert driver._launch_refine(0)  # noqa: SLF001 - the second seed (seed_soup_runs = 2)
+    assert study.trials[-1].user_attrs[keys.RACE_SEED] == 1
+    finish(74.2, texts[2])
+    assert driver._launch_seed_soup(1)  # noqa: SLF001 - a new best pair: 74.2 and 74.0
+    assert study.trials[-1].user_attrs[keys.SOUP_OF] == [0, study.trials[-2].number]
+    study.tell(driver._running.pop(1).trial, 74.1)  # noqa: SLF001
+    # both seeds trained: the refinement worker refines the best net, the 74.6 soup, at the refinement's rate
+    assert driver._launch_refine(0)  # noqa: SLF001
+    nxt = study.trials[-1]
+    assert nxt.user_attrs[keys.REFINE_OF]["trial"] == made.number and keys.SOUP_OF not in nxt.user_attrs
+    assert nxt.user_attrs[keys.CONFIG]["learning_rate"] == pytest.approx(
+        LINEAR.learning_rate * spec.study.refine_learning_rate)
+    assert nxt.user_attrs[keys.SEED] == refine.refine_seed(spec.study.seed, 0)

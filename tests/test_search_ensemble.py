@@ -163,5 +163,6 @@ def test_the_driver_trains_seeds_of_a_linear_configuration_and_soups_them(tmp_pa
     nxt = study.trials[-1]
     assert nxt.user_attrs[keys.REFINE_OF]["trial"] == made.number and keys.SOUP_OF not in nxt.user_attrs
     assert nxt.user_attrs[keys.CONFIG]["learning_rate"] == pytest.approx(
-        LINEAR.learning_rate * spec.study.refine_learning_rate)
+        LINEAR.learning_rate * spec.study.refine_learning_rate
+    )
     assert nxt.user_attrs[keys.SEED] == refine.refine_seed(spec.study.seed, 0)

@@ -75,7 +75,7 @@ def test_refine_soups_is_checked() -> None:
     for span, message in spans:
         with pytest.raises(SpecError, match=rf"\[study\] refine_soup_span: {message}"):
             _spec(refine_share=0.5, refine_soups=[2], refine_soup_span=span)
-    with pytest.raises(SpecError, match=r"\[study\] refine_soup_span: .*refine_soups and seed_soups are empty.*set refine_soups"):
+    with pytest.raises(SpecError, match=r"refine_soup_span: .*refine_soups and seed_soups are empty.*set refine_soups"):
         _spec(refine_share=0.5, refine_soup_span=1.0)
 
 

@@ -14,7 +14,8 @@ k) form a set no soup of it has tried yet, it scores that set's soup instead (``
 included two that had collapsed (69.08, 56.12), and their soup scored 73.37 against the parent's 75.29; every soup
 that won outside a study had its ingredients within 0.4 mph of the parent. A soup is an ordinary
 trial: ``refine_of`` its parent, ``soup_of`` its ingredients (the trials whose nets it averages; its net reproduces
-from theirs), its config theirs. A soup that beats its parent is a parent like any run that did.
+from theirs), its config theirs. A soup that beats its parent is a parent like any run that did. Independent
+trainings average only without hidden layers: ``autotune.search.ensemble``'s seed soups.
 """
 
 from __future__ import annotations

@@ -80,6 +80,30 @@ def test_the_next_seed_soup_is_the_best_k_seeds_of_the_best_configuration_near_t
     assert ensemble.next_seed_soup(groups, tried, (2,), 0.5, None, 1.0) == (9, (9, 10))
 
 
+def test_the_greedy_soup_adds_the_best_net_not_yet_tried_to_the_best_set_so_far() -> None:
+    nets = [(1, 75.3), (2, 75.2), (3, 75.0), (4, 74.9), (5, 74.0)]
+    # no soup yet: the best single net is the set, plus the next best
+    assert ensemble.greedy_step(nets, [], [], 74.5) == (1, 2)
+    # {1, 2} souped below net 1: net 1 stays the set; its next union is with 3
+    assert ensemble.greedy_step(nets, [[1, 2]], [([1, 2], 75.1)], 74.5) == (1, 3)
+    # {1, 3} beat it: the next steps add to {1, 3}, best net first ({1, 2, 3}), every net tried once against it
+    tried, scored = [[1, 2], [1, 3]], [([1, 2], 75.1), ([1, 3], 75.5)]
+    assert ensemble.greedy_step(nets, tried, scored, 74.5) == (1, 2, 3)
+    tried.append([1, 2, 3])  # still running: no score, but tried
+    assert ensemble.greedy_step(nets, tried, scored, 74.5) == (1, 3, 4)
+    tried.append([1, 3, 4])
+    assert ensemble.greedy_step(nets, tried, scored, 74.5) is None  # net 5 is below the floor
+    assert ensemble.greedy_step(nets, tried, scored, 73.0) == (1, 3, 5)
+    # a tie keeps the smaller set; a new seed is tried against the current set
+    assert ensemble.greedy_step(nets + [(6, 75.25)], tried, scored + [([1, 2, 3], 75.5)], 74.5) == (1, 3, 6)
+    assert ensemble.greedy_step([(5, 74.0)], [], [], 74.5) is None
+    # next_seed_soup: the sizes first, then the greedy step (only given the scored soups)
+    groups = {1: nets}
+    assert ensemble.next_seed_soup(groups, {1: [[1, 2]]}, (2,), 0.5, 75.3, 1.0) is None
+    assert ensemble.next_seed_soup(groups, {1: [[1, 2]]}, (2,), 0.5, 75.3, 1.0, {1: [([1, 2], 75.1)]}) == (1, (1, 3))
+    assert ensemble.next_seed_soup(groups, {}, (2,), 0.5, 75.3, 1.0, {}) == (1, (1, 2))
+
+
 def test_the_next_seed_run_is_the_first_linear_candidate_near_the_best_with_seeds_left() -> None:
     a, b = Entrant(3, 74.9, "a"), Entrant(8, 74.2, "b")
     assert ensemble.next_seed_run([a, b], [], {}, 75.0, 0.5, 2) == RaceRun(3, 0)
@@ -106,6 +130,11 @@ def test_seed_soups_and_seed_soup_runs_are_checked() -> None:
     with pytest.raises(SpecError, match=r"\[study\] seed_soup_runs: -1 is out of range"):
         _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=-1)
     assert _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=4).study.seed_soup_runs == 4
+    assert not _spec().study.seed_soup_greedy and _spec(seed_soups=[2], seed_soup_greedy=True).study.seed_soup_greedy
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_greedy: .*seed_soups is empty.*set seed_soups"):
+        _spec(seed_soup_greedy=True)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_greedy: must be true or false, got 1"):
+        _spec(seed_soups=[2], seed_soup_greedy=1)
 
 
 def test_the_driver_trains_seeds_of_a_linear_configuration_and_soups_them(tmp_path: Path) -> None:
@@ -166,3 +195,32 @@ def test_the_driver_trains_seeds_of_a_linear_configuration_and_soups_them(tmp_pa
         LINEAR.learning_rate * spec.study.refine_learning_rate
     )
     assert nxt.user_attrs[keys.SEED] == refine.refine_seed(spec.study.seed, 0)
+
+
+def test_the_driver_grows_a_greedy_seed_soup_from_the_best_set_so_far(tmp_path: Path) -> None:
+    """With ``seed_soup_greedy`` the driver scores, after the best-k soups, the best set so far plus the next net:
+    while the soup of the best 2 is scored, a free worker tries the best net with the third; the best 2 beat the best
+    net, so the third is then tried with both."""
+    spec = _spec(n_trials=20, timeout_s=3600, seed_soups=[2], seed_soup_greedy=True).with_overrides(
+        storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    config = LINEAR.replace(train_iterations=1200).to_mapping()
+    for seed, value in enumerate((74.0, 73.9, 73.8)):
+        extra = {keys.RACE_OF: 0, keys.RACE_SEED: seed - 1} if seed else {}
+        study.add_trial(optuna.trial.create_trial(
+            params=params, distributions=dists, value=value, state=COMPLETE,
+            user_attrs={keys.CONFIG: config, keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(seed)),
+                        **extra},
+        ))  # fmt: skip
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert driver._launch_seed_soup(0)  # noqa: SLF001 - the best 2
+    assert study.trials[-1].user_attrs[keys.SOUP_OF] == [0, 1]
+    assert driver._launch_seed_soup(1)  # noqa: SLF001 - meanwhile the next step from the best net so far
+    assert study.trials[-1].user_attrs[keys.SOUP_OF] == [0, 2]
+    study.tell(driver._running.pop(0).trial, 74.3)  # noqa: SLF001
+    study.tell(driver._running.pop(1).trial, 73.9)  # noqa: SLF001
+    assert driver._launch_seed_soup(1)  # noqa: SLF001 - {0, 1} beat net 0: the greedy soup adds net 2 to it
+    made = study.trials[-1]
+    assert made.user_attrs[keys.SOUP_OF] == [0, 1, 2] and made.user_attrs[keys.SEED_SOUP_OF] == 0
+    study.tell(driver._running.pop(1).trial, 74.1)  # noqa: SLF001
+    assert not driver._launch_seed_soup(0)  # noqa: SLF001 - every net was tried with the best set {0, 1}

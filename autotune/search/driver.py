@@ -871,8 +871,9 @@ class Driver:
 
     def _launch_seed_soup(self, slot: int) -> bool:
         """Score the next seed soup of a linear configuration on ``slot`` (``ensemble.next_seed_soup`` over ``[study]
-        seed_soups``: its nets within ``refine_soup_span`` of its best, configurations within ``SEED_SOUP_REACH`` of the
-        study's best net); False when there is none, the queue comes first, or the deadline is near.
+        seed_soups``, then its greedy soup with ``seed_soup_greedy``: its nets within ``refine_soup_span`` of its
+        best, configurations within ``SEED_SOUP_REACH`` of the study's best net); False when there is none, the
+        queue comes first, or the deadline is near.
 
         The soup is a refinement trial of its configuration's best net (``refine_of``: a soup that beats it is a
         parent like any refinement run that did), with ``soup_of`` its ingredients and ``seed_soup_of`` the
@@ -888,12 +889,17 @@ class Driver:
         if not any(len(nets) > 1 for nets in groups.values()):
             return False
         tried: dict[int, list[list[int]]] = {}
+        scored: dict[int, list[tuple[list[int], float]]] = {}
         for t in trials:
             owner = t.user_attrs.get(keys.SEED_SOUP_OF)
             if owner is not None and keys.RETRY_OF not in t.user_attrs:
-                tried.setdefault(int(owner), []).append(list(t.user_attrs.get(keys.SOUP_OF) or ()))
+                ingredients = list(t.user_attrs.get(keys.SOUP_OF) or ())
+                tried.setdefault(int(owner), []).append(ingredients)
+                if t.state == TrialState.COMPLETE and t.value is not None:
+                    scored.setdefault(int(owner), []).append((ingredients, float(t.value)))
         pick = ensemble.next_seed_soup(
-            groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials), SEED_SOUP_REACH
+            groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials), SEED_SOUP_REACH,
+            scored if st.seed_soup_greedy else None,
         )  # fmt: skip
         if pick is None:
             return False

@@ -6,7 +6,8 @@ Five tables, every key optional unless said otherwise::
                   sampler_startup_trials, max_trial_cost_s, race_fraction, race_configs, race_seeds,
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
-                  refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_runs
+                  refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
+                  seed_soup_runs
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -265,6 +266,10 @@ class StudySection:
     """Sizes k of the seed soups of each configuration without hidden layers (``autotune.search.ensemble``): whenever
     its best k fresh-seed nets form a new set, any free worker scores the mean of their weights — exactly their
     Q-values' mean — with no training; () none."""
+    seed_soup_greedy: bool = False
+    """With seed_soups: once a linear configuration's best-k soups are scored, its greedy soup — the best set so far
+    plus one more of its nets within refine_soup_span of its best, kept when it scores higher (``ensemble.
+    greedy_step``)."""
     seed_soup_runs: int = 0
     """With seed_soups and refine_share: the most fresh seeds a linear configuration near the study's best gets on
     the refinement's workers before the race, for its soups (0: only the race's)."""
@@ -706,6 +711,12 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if not soups and not seed_soups and span != d.refine_soup_span:
         raise where.error("refine_soup_span", "sets the weight soups' ingredients, but refine_soups and seed_soups "
                           "are empty", "set refine_soups (e.g. [2, 4]), or remove refine_soup_span")  # fmt: skip
+    greedy = table.get("seed_soup_greedy", d.seed_soup_greedy)
+    if not isinstance(greedy, bool):
+        raise where.error("seed_soup_greedy", f"must be true or false, got {greedy!r}", "e.g. seed_soup_greedy = true")
+    if greedy and not seed_soups:
+        raise where.error("seed_soup_greedy", "grows the seed soups, but seed_soups is empty",
+                          "set seed_soups (e.g. [2, 3]), or remove seed_soup_greedy")  # fmt: skip
     seed_runs = _int(table.get("seed_soup_runs", d.seed_soup_runs), f"{src}: [study] seed_soup_runs", 0, 1_000)
     if seed_runs and not seed_soups:
         raise where.error("seed_soup_runs", "trains seeds for the seed soups, but seed_soups is empty",
@@ -722,7 +733,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        seed_runs,
+        greedy, seed_runs,
     )  # fmt: skip
 
 

@@ -893,10 +893,10 @@ class Driver:
         for t in trials:
             owner = t.user_attrs.get(keys.SEED_SOUP_OF)
             if owner is not None and keys.RETRY_OF not in t.user_attrs:
-                ingredients = list(t.user_attrs.get(keys.SOUP_OF) or ())
-                tried.setdefault(int(owner), []).append(ingredients)
+                soup_of = list(t.user_attrs.get(keys.SOUP_OF) or ())
+                tried.setdefault(int(owner), []).append(soup_of)
                 if t.state == TrialState.COMPLETE and t.value is not None:
-                    scored.setdefault(int(owner), []).append((ingredients, float(t.value)))
+                    scored.setdefault(int(owner), []).append((soup_of, float(t.value)))
         pick = ensemble.next_seed_soup(
             groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials), SEED_SOUP_REACH,
             scored if st.seed_soup_greedy else None,

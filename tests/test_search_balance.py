@@ -119,6 +119,30 @@ def test_a_forced_draw_is_modelled_on_its_own_values_trials() -> None:
     assert any(len(methods) > 1 for methods, _a in shared)  # the base's history holds every method's trials
 
 
+def test_a_forced_layer_count_draw_models_its_trainer_method_on_its_own_trials() -> None:
+    """A draw forced to linear nets (``n_layers = 0``) takes its trainer method, as its rate and layout, from the
+    linear trials alone: which method suits a net depends on its depth."""
+    spec = _spec(balance=["n_layers"], balance_values={"n_layers": [0]}, balance_min_share=0.3)
+    sampler = make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0)
+    balanced = sampler.base  # type: ignore[attr-defined]
+    assert isinstance(balanced, BalancedSampler)
+    own: list[tuple[set[int], set[str]]] = []
+    conditional = balanced._conditional  # noqa: SLF001
+    sample_own = conditional.sample_relative
+
+    def spy_own(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+        own.append(({t.params["n_layers"] for t in study._get_trials(deepcopy=False)}, set(search_space)))  # noqa: SLF001
+        return sample_own(study, trial, search_space)
+
+    conditional.sample_relative = spy_own  # type: ignore[method-assign]
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    for _ in range(30):
+        trial = study.ask()
+        study.tell(trial, _greedy(space.sample(trial, spec)))
+    assert own and all(layers <= {0} for layers, _asked in own)
+    assert any("method" in asked and "learning_rate" in asked for _l, asked in own)
+
+
 def _shared_optimum(params: dict[str, Any]) -> float:
     """``_greedy`` plus a view that is best for every method (lanes_side 2, patches_ahead 4)."""
     return _greedy(params) - 2.0 * (2 - params["lanes_side"]) - 2.0 * (4 - params["patches_ahead"])
@@ -191,8 +215,8 @@ def test_balance_is_checked_against_the_space() -> None:
 
 def test_paper_balances_the_trainer_method() -> None:
     spec = load_spec("study_configs/paper.toml")
-    assert spec.study.balance == ("method",) and spec.study.balance_min_share == 0.2
-    assert spec.study.balance_values == ()  # every method: the default
+    assert spec.study.balance == ("method", "n_layers") and spec.study.balance_min_share == 0.2
+    assert spec.study.balance_values == (("n_layers", (0,)),)  # every method, and linear nets
     spec = dataclasses.replace(spec, study=dataclasses.replace(spec.study, denoise=False))  # denoise: its own test
     sampler = make_sampler(spec, 0)
     assert isinstance(sampler, BalancedSampler) and isinstance(sampler.base, optuna.samplers.TPESampler)

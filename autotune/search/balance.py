@@ -43,10 +43,18 @@ __all__ = ["BalancedSampler", "OWN_PARAMETERS", "conditional_startup", "forced_v
 
 OWN_PARAMETERS: Mapping[str, frozenset[str]] = {
     "method": frozenset({"learning_rate", "learning_rate_x_inputs", "momentum", "l2_decay", "l1_decay"}),
-    "n_layers": frozenset({
-        "neurons", "activation", "method", "learning_rate", "learning_rate_x_inputs", "momentum", "l2_decay",
-        "l1_decay",
-    }),
+    "n_layers": frozenset(
+        {
+            "neurons",
+            "activation",
+            "method",
+            "learning_rate",
+            "learning_rate_x_inputs",
+            "momentum",
+            "l2_decay",
+            "l1_decay",
+        }
+    ),
 }
 """For a balanced parameter, the parameters whose good values depend on its value: a forced draw models them on
 the trials with the forced value alone, and every other parameter on all trials. The trainer methods scale a

@@ -63,10 +63,10 @@ each keeps its own rate; the view, the other agents, γ, ε and the layers mean 
 balanced parameter not named here models every parameter on its value's trials. A layout slot (``neurons_2``,
 ``activation_0``) goes by its base name. For the layer count, a net's width, activations and step size depend on
 how many layers it has, and so does which trainer method suits it: the linear nets that scored 75 all trained with
-adagrad, the hidden-layer nets above 75 mostly with sgd, so a forced linear draw whose method came from every
-trial's model took sgd in 11 of its 14 draws of a crowd-prior study's first 20 minutes (none above 73.1) while
-another run of that study found its 75-mph linear adagrad net at minute 10; what a net sees and how it is rewarded
-do not depend on its depth."""
+adagrad, while a crowd-prior study's best hidden-layer lineage is gsurma's sgd setting; a forced linear draw whose
+method came from every trial's model took sgd in 11 of 14 draws of such a study's first 20 minutes (none above
+73.1), where another run of that study found its 75-mph linear adagrad net at minute 10; what a net sees and how
+it is rewarded do not depend on its depth."""
 
 
 def _base_name(name: str) -> str:

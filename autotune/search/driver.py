@@ -765,15 +765,19 @@ class Driver:
                 entries[t.number] = entry
         candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))
         run = racing.incumbent_run(candidates, results, launched, best, max_runs=st.intensify_runs)
-        if run is None:
-            return False
-        config = entries[run.race_of][2]
+        return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.INCUMBENT_RUN)
+
+    def _launch_race_run(
+        self, slot: int, trials: list[FrozenTrial], config: dict[str, Any], run: racing.RaceRun, flag: str
+    ) -> bool:
+        """Enqueue and start ``run`` (a race seed of a configuration, ``config`` its race entry's) before the race,
+        marked ``flag`` (an incumbent run, a seed soup's seed); False when it would not finish before the deadline."""
+        assert self.study is not None
         if self._race_cost(config) * RACE_MARGIN > self._time_left():
             return False
-        source = trials[run.race_of]
-        self.study.enqueue_trial(dict(source.params), user_attrs={
-            keys.CONFIG: config, keys.SEED: racing.race_seed(st.seed, run.seed_index), keys.RACE_OF: run.race_of,
-            keys.RACE_SEED: run.seed_index, keys.INCUMBENT_RUN: True,
+        self.study.enqueue_trial(dict(trials[run.race_of].params), user_attrs={
+            keys.CONFIG: config, keys.SEED: racing.race_seed(self.spec.study.seed, run.seed_index),
+            keys.RACE_OF: run.race_of, keys.RACE_SEED: run.seed_index, flag: True,
         })  # fmt: skip
         return self._launch_next(slot)
 
@@ -941,17 +945,7 @@ class Driver:
         run = ensemble.next_seed_run(
             candidates, launched, level, _best_score(trials), refine.PARENT_SPAN, st.seed_soup_runs
         )  # fmt: skip
-        if run is None:
-            return False
-        config = entries[run.race_of][2]
-        if self._race_cost(config) * RACE_MARGIN > self._time_left():
-            return False
-        source = trials[run.race_of]
-        self.study.enqueue_trial(dict(source.params), user_attrs={
-            keys.CONFIG: config, keys.SEED: racing.race_seed(st.seed, run.seed_index), keys.RACE_OF: run.race_of,
-            keys.RACE_SEED: run.seed_index, keys.SEED_SOUP_RUN: True,
-        })  # fmt: skip
-        return self._launch_next(slot)
+        return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.SEED_SOUP_RUN)
 
     def _soup_net(self, ingredients: list[int]) -> str:
         """The convnetjs Net JSON of the weight soup of ``ingredients``' stored nets."""

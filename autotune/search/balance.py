@@ -63,10 +63,10 @@ each keeps its own rate; the view, the other agents, γ, ε and the layers mean 
 balanced parameter not named here models every parameter on its value's trials. A layout slot (``neurons_2``,
 ``activation_0``) goes by its base name. For the layer count, a net's width, activations and step size depend on
 how many layers it has, and so does which trainer method suits it: the linear nets that scored 75 all trained with
-adagrad, while a crowd-prior study's best hidden-layer lineage is gsurma's sgd setting; a forced linear draw whose
-method came from every trial's model took sgd in 11 of 14 draws of such a study's first 20 minutes (none above
-73.1), where another run of that study found its 75-mph linear adagrad net at minute 10; what a net sees and how
-it is rewarded do not depend on its depth."""
+adagrad, while a crowd-prior study's best hidden-layer lineage is gsurma's sgd setting; with the method from every
+trial's model, all 6 forced linear draws of such a study's first 20 minutes took sgd (none above 73.1), where
+another run of that study found its 75-mph linear adagrad net at minute 10; what a net sees and how it is rewarded
+do not depend on its depth. (The sampler's free linear draws still take the method from every trial's model.)"""
 
 
 def _base_name(name: str) -> str:

@@ -217,6 +217,7 @@ def test_paper_balances_the_trainer_method() -> None:
     spec = load_spec("study_configs/paper.toml")
     assert spec.study.balance == ("method", "n_layers") and spec.study.balance_min_share == 0.2
     assert spec.study.balance_values == (("n_layers", (0,)),)  # every method, and linear nets
+    assert spec.study.balance_every_draw  # free draws too: a linear draw's method and a method's rate
     spec = dataclasses.replace(spec, study=dataclasses.replace(spec.study, denoise=False))  # denoise: its own test
     sampler = make_sampler(spec, 0)
     assert isinstance(sampler, BalancedSampler) and isinstance(sampler.base, optuna.samplers.TPESampler)
@@ -278,3 +279,99 @@ def test_balance_values_are_checked() -> None:
         _spec(balance=["method"], balance_values={"method": ["sdg"]})
     one = _spec(balance=["method"], balance_values={"method": ["sgd"]}, balance_min_share=0.9)
     assert one.study.balance_min_share == 0.9  # one value with a floor: its share may go up to 1
+
+
+def _linear_trap(params: dict[str, Any]) -> float:
+    """Hidden-layer nets do best with sgd near lr 1e-4 (74); linear nets do better with adagrad near 5e-3 (77),
+    which a rate modelled on the sgd trials, or a method modelled on every trial, never reaches."""
+    lr = math.log10(params["learning_rate"])
+    if params["method"] == "adadelta":
+        return 60.0
+    if params["n_layers"] == 0:
+        return 77.0 - 4.0 * abs(lr + 2.3) if params["method"] == "adagrad" else 73.0 - 3.0 * abs(lr + 4.0)
+    return 74.0 - 3.0 * abs(lr + 4.0) if params["method"] == "sgd" else 71.0 - abs(lr + 4.0)
+
+
+def _trap_study(seed: int, every_draw: bool, n: int = 80) -> tuple[optuna.Study, BalancedSampler]:
+    spec = _spec(balance=["method", "n_layers"], balance_values={"n_layers": [0]}, balance_min_share=0.2,
+                 balance_every_draw=every_draw)  # fmt: skip
+    sampler = make_sampler(spec, seed, lambda _p: 1.0, lambda: 10.0)
+    balanced = sampler.base  # type: ignore[attr-defined]
+    assert isinstance(balanced, BalancedSampler)
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    for _ in range(n):
+        trial = study.ask()
+        study.tell(trial, _linear_trap(space.sample(trial, spec)))
+    return study, balanced
+
+
+@pytest.mark.parametrize("seed", [2, 4])
+def test_every_draw_models_a_linear_draws_method_and_rate_on_its_own_trials(seed: int) -> None:
+    """``balance_every_draw``: a free linear draw's method comes from the linear trials, each method keeps its share
+    of the linear draws, and a method's rate comes from the trials with that method and depth. On these study
+    seeds only forced draws are conditioned otherwise, and the linear adagrad optimum is never found (1 and 0 of
+    80 trials are linear adagrad); with every draw conditioned it is."""
+    plain, _ = _trap_study(seed, every_draw=False)
+    assert max(t.value for t in plain.trials if t.value is not None) < 76.0
+    study, balanced = _trap_study(seed, every_draw=True)
+    assert max(t.value for t in study.trials if t.value is not None) > 76.0
+    linear = [t for t in study.trials if t.params["n_layers"] == 0]
+    for k in range(1, len(linear) + 1):
+        methods = collections.Counter(t.params["method"] for t in linear[:k])
+        assert all(methods[m] >= math.floor(0.2 * k) for m in METHODS), (k, methods)
+    inside = [balanced.forced_within(t.number) for t in study.trials]
+    assert any(inside) and all(name == "method" for pairs in inside for name, _v in pairs)
+
+
+def test_every_draw_takes_a_rate_from_its_method_and_depth() -> None:
+    """A draw's rate (the conditional sampler's last draw of it: a linear draw's method and rate are first drawn
+    together from the linear trials) comes from trials of its method, and for a linear draw from the linear trials
+    of that method alone."""
+    spec = _spec(balance=["method", "n_layers"], balance_values={"n_layers": [0]}, balance_min_share=0.2,
+                 balance_every_draw=True)  # fmt: skip
+    sampler = make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0)
+    balanced = sampler.base  # type: ignore[attr-defined]
+    conditional = balanced._conditional  # noqa: SLF001
+    sample_own = conditional.sample_relative
+    seen: list[tuple[set[Any], set[Any], bool]] = []
+
+    def spy(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+        shown = study._get_trials(deepcopy=False)  # noqa: SLF001
+        out = sample_own(study, trial, search_space)
+        if "learning_rate" in out:
+            seen.append(({t.params["method"] for t in shown}, {t.params["n_layers"] for t in shown}, trial.number))
+        return out
+
+    sample_one = conditional.sample_independent
+
+    def spy_one(study: Any, trial: Any, name: str, distribution: Any) -> Any:
+        if name == "learning_rate":
+            shown = study._get_trials(deepcopy=False)  # noqa: SLF001
+            seen.append(({t.params["method"] for t in shown}, {t.params["n_layers"] for t in shown}, trial.number))
+        return sample_one(study, trial, name, distribution)
+
+    conditional.sample_relative = spy  # type: ignore[method-assign]
+    conditional.sample_independent = spy_one  # type: ignore[method-assign]
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    rates: dict[int, float] = {}
+    for _ in range(60):
+        trial = study.ask()
+        params = space.sample(trial, spec)
+        rates[trial.number] = params["n_layers"]
+        study.tell(trial, _linear_trap(params))
+    last = {number: (methods, layers, number) for methods, layers, number in seen}
+    assert len(last) > 20 and sum(len(m) == 1 for m, _l, _n in last.values()) > 20
+    assert any(rates[n] == 0 for n in last) and any(rates[n] != 0 for n in last)
+    for methods, layers, number in last.values():
+        assert len(methods) <= 1  # (none: the first draw of its method and depth, at random)
+        if rates[number] == 0 and number >= 6:  # (in the base's startup a draw's depth is drawn after its rate)
+            assert layers <= {0}
+
+
+def test_balance_every_draw_is_checked() -> None:
+    spec = _spec(balance=["method"], balance_every_draw=True)
+    assert spec.study.balance_every_draw and parse_spec(spec.to_dict()) == spec
+    with pytest.raises(SpecError, match=r"\[study\] balance_every_draw: must be true or false"):
+        _spec(balance=["method"], balance_every_draw="yes")
+    with pytest.raises(SpecError, match=r"\[study\] balance_every_draw: conditions the draws .* balance is empty"):
+        _spec(balance_every_draw=True)

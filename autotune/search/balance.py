@@ -88,15 +88,15 @@ def forced_value(counts: dict[Any, int], min_share: float, drawn: int | None = N
 
 
 class _Subset(HistoryView):
-    """A read-only view of ``study`` whose trials are those with ``params[name] == value`` (a sampler's history)."""
+    """A read-only view of ``study`` whose trials have ``params[name] == value`` for every ``(name, value)`` in
+    ``conditions`` (a sampler's history)."""
 
-    def __init__(self, study: Study, name: str, value: Any) -> None:
+    def __init__(self, study: Study, conditions: Sequence[tuple[str, Any]]) -> None:
         super().__init__(study)
-        self._name = name
-        self._value = value
+        self._conditions = tuple(conditions)
 
     def shown(self, trials: list[FrozenTrial]) -> list[FrozenTrial]:
-        return [t for t in trials if t.params.get(self._name) == self._value]
+        return [t for t in trials if all(t.params.get(n) == v for n, v in self._conditions)]
 
 
 def _sampled(trial: FrozenTrial) -> bool:
@@ -125,6 +125,7 @@ class BalancedSampler(BaseSampler):
         min_share: float,
         own: Mapping[str, Collection[str]] | None = None,
         distributions: Mapping[str, BaseDistribution] | None = None,
+        every_draw: bool = False,
     ) -> None:
         if not balance:
             raise ValueError("balance: name at least one categorical parameter")
@@ -141,6 +142,11 @@ class BalancedSampler(BaseSampler):
         given = dict(distributions or {})
         self._distributions = {n: given.get(n, CategoricalDistribution(list(c))) for n, c in self._balance.items()}
         self._forced: dict[int, tuple[str, Any]] = {}
+        self._nested: dict[int, tuple[tuple[str, Any], ...]] = {}
+        self._every_draw = bool(every_draw)
+        # a balanced parameter before those its value governs (the layer count before the trainer method)
+        names = list(self._balance)
+        self._order = tuple(sorted(names, key=lambda n: -sum(1 for m in names if m in self._own.get(n, ()))))
 
     @property
     def base(self) -> BaseSampler:
@@ -150,6 +156,11 @@ class BalancedSampler(BaseSampler):
     def forced(self, number: int) -> tuple[str, Any] | None:
         """``(parameter, value)`` trial ``number`` was forced to, None when the base sampler drew it freely."""
         return self._forced.get(number)
+
+    def forced_within(self, number: int) -> tuple[tuple[str, Any], ...]:
+        """``(parameter, value)`` pairs trial ``number`` was forced to within its values' trials (``every_draw``:
+        a linear draw's trainer method short of its share of the linear draws), in the order forced."""
+        return self._nested.get(number, ())
 
     def reseed_rng(self) -> None:
         self._base.reseed_rng()
@@ -177,26 +188,99 @@ class BalancedSampler(BaseSampler):
     def sample_relative(
         self, study: Study, trial: FrozenTrial, search_space: dict[str, BaseDistribution]
     ) -> dict[str, Any]:
+        self._nested.pop(trial.number, None)
         short = self._short(study, trial)
         if short is None:
             self._forced.pop(trial.number, None)
-            return self._base.sample_relative(study, trial, search_space)
+            params = self._base.sample_relative(study, trial, search_space)
+            return self._condition(study, trial, search_space, params, ()) if self._every_draw else params
         name, value = short
         self._forced[trial.number] = short
         own = self._own.get(name)
-        params: dict[str, Any] = {}
+        params = {}
         shared = (
             {} if own is None else {k: d for k, d in search_space.items() if k != name and _base_name(k) not in own}
         )
         if shared:  # what every trial taught: the base's model of the parameters the forced value does not change
             params.update((k, v) for k, v in self._base.sample_relative(study, trial, shared).items() if k in shared)
-        view: Any = _Subset(study, name, value)
-        rest = {k: d for k, d in self._conditional.infer_relative_search_space(view, trial).items()
-                if k != name and (own is None or _base_name(k) in own)}  # fmt: skip
-        if rest:
-            params.update((k, v) for k, v in self._conditional.sample_relative(view, trial, rest).items() if k in rest)
+        if self._every_draw:
+            params[name] = value
+            return self._condition(study, trial, search_space, params, (short,))
+        params.update(self._redraw(study, trial, (short,), own, search_space))
         params[name] = value
         return params
+
+    def _redraw(
+        self,
+        study: Study,
+        trial: FrozenTrial,
+        conditions: Sequence[tuple[str, Any]],
+        own: frozenset[str] | None,
+        search_space: dict[str, BaseDistribution],
+        fill: bool = False,
+    ) -> dict[str, Any]:
+        """``own``'s parameters (None: all but the conditions') drawn by the conditional sampler from the trials that
+        share every value in ``conditions``; with ``fill``, those its relative draw leaves out too (its independent
+        draw: at random while those trials are fewer than its startup), else the base draws them independently."""
+        view: Any = _Subset(study, conditions)
+        fixed = {n for n, _v in conditions}
+        rest = {k: d for k, d in self._conditional.infer_relative_search_space(view, trial).items()
+                if k not in fixed and (own is None or _base_name(k) in own)}  # fmt: skip
+        if not rest:
+            return {}
+        out = {k: v for k, v in self._conditional.sample_relative(view, trial, rest).items() if k in rest}
+        if fill:  # within those trials' startup (too few to model), at random, not from a wider model
+            out.update((k, self._conditional.sample_independent(view, trial, k, d)) for k, d in rest.items() if k not in out)
+        return out
+
+    def _condition(
+        self,
+        study: Study,
+        trial: FrozenTrial,
+        search_space: dict[str, BaseDistribution],
+        params: dict[str, Any],
+        conditions: tuple[tuple[str, Any], ...],
+    ) -> dict[str, Any]:
+        """``[study] balance_every_draw``: each balanced parameter whose value has a floor (in the order where a
+        parameter comes before those its value governs: the layer count, then the trainer method) has its own
+        parameters redrawn from the trials sharing that value and the values conditioned on before it; a balanced
+        parameter among them first keeps its floor within those trials (forced when short, as in the study)."""
+        params = dict(params)
+        nested: list[tuple[str, Any]] = []
+        for name in self._order:
+            value = params.get(name)
+            if value not in self._balance[name]:
+                continue
+            if name not in {n for n, _v in conditions}:
+                conditions = (*conditions, (name, value))
+            own = self._own.get(name)
+            forced_inside: dict[str, Any] = {}
+            for inner in self._order:
+                if inner in {n for n, _v in conditions} or (own is not None and inner not in own):
+                    continue
+                short = self._short_within(study, trial, conditions, inner)
+                if short is not None:
+                    forced_inside[inner] = short
+                    nested.append((inner, short))
+            params.update(forced_inside)
+            fixed = (*conditions, *forced_inside.items())
+            params.update(self._redraw(study, trial, fixed, own, search_space, fill=True))
+        if nested:
+            self._nested[trial.number] = tuple(nested)
+        return params
+
+    def _short_within(
+        self, study: Study, trial: FrozenTrial, conditions: Sequence[tuple[str, Any]], name: str
+    ) -> Any | None:
+        """The value of ``name`` short of its floor among the sampled trials that share ``conditions``, or None."""
+        drawn = [t for t in study._get_trials(deepcopy=False, use_cache=False)  # noqa: SLF001
+                 if t.number != trial.number and _sampled(t) and all(t.params.get(n) == v for n, v in conditions)]  # fmt: skip
+        counts = dict.fromkeys(self._balance[name], 0)
+        for t in drawn:
+            v = t.params.get(name)
+            if v in counts:
+                counts[v] += 1
+        return forced_value(counts, self._min_share, sum(1 for t in drawn if name in t.params))
 
     def sample_independent(
         self, study: Study, trial: FrozenTrial, param_name: str, param_distribution: BaseDistribution

@@ -184,7 +184,8 @@ def make_sampler(
         conditional = _base_sampler(spec, seed + 1, name, startup=per_value)
         dists = distributions(spec)
         base = BalancedSampler(base, conditional, floors, spec.study.balance_min_share,
-                               distributions={n: dists[n] for n in floors})  # fmt: skip
+                               distributions={n: dists[n] for n in floors},
+                               every_draw=spec.study.balance_every_draw)  # fmt: skip
     if spec.study.denoise:  # the history at a forest's estimate of each trial, not its own noisy score
         base = DenoisedSampler(base, denoise_reference_step(spec), seed, quantile=spec.study.denoise_quantile)
     if price is None:
@@ -1237,9 +1238,11 @@ class Driver:
             balanced = self.study.sampler.base
             if isinstance(balanced, DenoisedSampler):
                 balanced = balanced.base
-            forced = balanced.forced(trial.number) if isinstance(balanced, BalancedSampler) else None
-            if forced is not None:
-                trial.set_user_attr(keys.BALANCED, f"{forced[0]}={forced[1]}")
+            if isinstance(balanced, BalancedSampler):
+                forced = balanced.forced(trial.number)
+                every = ((forced,) if forced is not None else ()) + balanced.forced_within(trial.number)
+                if every:
+                    trial.set_user_attr(keys.BALANCED, ",".join(f"{name}={value}" for name, value in every))
         e = self.spec.evaluation
         st = self.spec.study
         task = TrialTask(

@@ -95,7 +95,9 @@ PREDICTED_RUNG_COSTS: Final = "predicted_rung_s"
 REFUSED_DRAWS: Final = "refused_draws"
 """Draws the cost gate refused before this trial's."""
 BALANCED: Final = "balanced"
-"""``"method=sgd"``: the draw was forced to that value to keep its share (``[study] balance``); absent: drawn freely."""
+"""``"method=sgd"``: the draw was forced to that value to keep its share (``[study] balance``); with
+``balance_every_draw`` a value forced within the draw's own values' trials follows (``"n_layers=0,method=adagrad"``,
+or ``"method=adagrad"`` for a free linear draw short of adagrad); absent: drawn freely."""
 RACE_OF: Final = "race_of"
 """Seed race: the trial whose configuration this run retrains with a fresh seed."""
 RACE_SEED: Final = "race_seed"

@@ -7,7 +7,7 @@ Five tables, every key optional unless said otherwise::
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
-                  seed_soup_runs
+                  seed_soup_runs, balance_every_draw
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -273,6 +273,10 @@ class StudySection:
     seed_soup_runs: int = 0
     """With seed_soups and refine_share: the most fresh seeds a linear configuration near the study's best gets on
     the refinement's workers before the race, for its soups (0: only the race's)."""
+    balance_every_draw: bool = False
+    """With balance: every draw, not only a forced one, takes the parameters a balanced value governs (a linear
+    net's trainer method; a method's learning rate) from the trials sharing its values, and a balanced parameter
+    keeps its share within them (each method a share of the linear draws); false: only forced draws."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -728,12 +732,19 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
+    every_draw = table.get("balance_every_draw", d.balance_every_draw)
+    if not isinstance(every_draw, bool):
+        raise where.error("balance_every_draw", f"must be true or false, got {every_draw!r}",
+                          "e.g. balance_every_draw = true")  # fmt: skip
+    if every_draw and not balance:
+        raise where.error("balance_every_draw", "conditions the draws on the balanced parameters, but balance is "
+                          "empty", 'set balance (e.g. ["method"]), or remove balance_every_draw')  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        greedy, seed_runs,
+        greedy, seed_runs, every_draw,
     )  # fmt: skip
 
 

@@ -230,7 +230,9 @@ class BalancedSampler(BaseSampler):
             return {}
         out = {k: v for k, v in self._conditional.sample_relative(view, trial, rest).items() if k in rest}
         if fill:  # within those trials' startup (too few to model), at random, not from a wider model
-            out.update((k, self._conditional.sample_independent(view, trial, k, d)) for k, d in rest.items() if k not in out)
+            for k, d in rest.items():
+                if k not in out:
+                    out[k] = self._conditional.sample_independent(view, trial, k, d)
         return out
 
     def _condition(
@@ -273,8 +275,9 @@ class BalancedSampler(BaseSampler):
         self, study: Study, trial: FrozenTrial, conditions: Sequence[tuple[str, Any]], name: str
     ) -> Any | None:
         """The value of ``name`` short of its floor among the sampled trials that share ``conditions``, or None."""
-        drawn = [t for t in study._get_trials(deepcopy=False, use_cache=False)  # noqa: SLF001
-                 if t.number != trial.number and _sampled(t) and all(t.params.get(n) == v for n, v in conditions)]  # fmt: skip
+        trials = study._get_trials(deepcopy=False, use_cache=False)  # noqa: SLF001
+        drawn = [t for t in trials if t.number != trial.number and _sampled(t)
+                 and all(t.params.get(n) == v for n, v in conditions)]  # fmt: skip
         counts = dict.fromkeys(self._balance[name], 0)
         for t in drawn:
             v = t.params.get(name)

@@ -18,6 +18,15 @@ base sampler, which models them on every trial. Otherwise the base sampler draws
 wrapper. The first draws of a study go round the values, so the startup phase is stratified too.
 Only samplers whose model is their trial history (TPE, random) can be conditioned this way.
 
+``every_draw`` (``[study] balance_every_draw``) conditions every draw, not only a forced one: whenever a draw's
+value of a balanced parameter has a floor, the parameters it governs are redrawn from the trials sharing it (and
+the values conditioned on before it: the layer count comes before the trainer method it governs), and a balanced
+parameter among them keeps its share within those trials. A linear draw thus takes its method from the linear
+trials, each method keeping a fifth of the linear draws, and its rate from the linear trials of its method. Why:
+a crowd-prior hour's free draws took a linear net's method and rate from every trial's model, where gsurma's sgd
+lineage leads: 43 of its 68 linear draws were sgd, and its 9 linear adagrad draws had a rate × inputs of
+0.0007–0.66, where the linear adagrad nets that reached 75 in another hour had 1–10.
+
 Why the split: a forced draw once took every parameter from its value's own trials, few and mostly
 poor, so it lost what the study had learnt elsewhere. In the 20 cold benchmark studies with the balance
 (10 to 60 minutes), 24 % of the forced draws after the startup had 9 or 10 other agents against 47 % of
@@ -66,7 +75,8 @@ how many layers it has, and so does which trainer method suits it: the linear ne
 adagrad, while a crowd-prior study's best hidden-layer lineage is gsurma's sgd setting; with the method from every
 trial's model, all 6 forced linear draws of such a study's first 20 minutes took sgd (none above 73.1), where
 another run of that study found its 75-mph linear adagrad net at minute 10; what a net sees and how it is rewarded
-do not depend on its depth. (The sampler's free linear draws still take the method from every trial's model.)"""
+do not depend on its depth. Without ``every_draw`` the sampler's free linear draws still take the method from
+every trial's model."""
 
 
 def _base_name(name: str) -> str:

@@ -1240,9 +1240,9 @@ class Driver:
                 balanced = balanced.base
             if isinstance(balanced, BalancedSampler):
                 forced = balanced.forced(trial.number)
-                every = ((forced,) if forced is not None else ()) + balanced.forced_within(trial.number)
-                if every:
-                    trial.set_user_attr(keys.BALANCED, ",".join(f"{name}={value}" for name, value in every))
+                pairs = ((forced,) if forced is not None else ()) + balanced.forced_within(trial.number)
+                if pairs:
+                    trial.set_user_attr(keys.BALANCED, ",".join(f"{name}={value}" for name, value in pairs))
         e = self.spec.evaluation
         st = self.spec.study
         task = TrialTask(

@@ -176,16 +176,24 @@ class BalancedSampler(BaseSampler):
         self._base.reseed_rng()
         self._conditional.reseed_rng()
 
+    def _drawn(self, study: Study, trial: FrozenTrial) -> list[FrozenTrial]:
+        """The study's sampled trials other than ``trial`` (enqueued ones are not draws)."""
+        trials = study._get_trials(deepcopy=False, use_cache=False)  # noqa: SLF001
+        return [t for t in trials if t.number != trial.number and _sampled(t)]
+
+    def _short_in(self, drawn: Sequence[FrozenTrial], name: str) -> Any | None:
+        """The value of ``name`` short of its floor among ``drawn``, or None."""
+        counts = dict.fromkeys(self._balance[name], 0)
+        for t in drawn:
+            v = t.params.get(name)
+            if v in counts:
+                counts[v] += 1
+        return forced_value(counts, self._min_share, sum(1 for t in drawn if name in t.params))
+
     def _short(self, study: Study, trial: FrozenTrial) -> tuple[str, Any] | None:
-        trials = [t for t in study._get_trials(deepcopy=False, use_cache=False) if t.number != trial.number]  # noqa: SLF001
-        drawn = [t for t in trials if _sampled(t)]
-        for name, choices in self._balance.items():
-            counts = dict.fromkeys(choices, 0)
-            for t in drawn:
-                v = t.params.get(name)
-                if v in counts:
-                    counts[v] += 1
-            value = forced_value(counts, self._min_share, sum(1 for t in drawn if name in t.params))
+        drawn = self._drawn(study, trial)
+        for name in self._balance:
+            value = self._short_in(drawn, name)
             if value is not None:
                 return name, value
         return None
@@ -203,7 +211,7 @@ class BalancedSampler(BaseSampler):
         if short is None:
             self._forced.pop(trial.number, None)
             params = self._base.sample_relative(study, trial, search_space)
-            return self._condition(study, trial, search_space, params, ()) if self._every_draw else params
+            return self._condition(study, trial, params, ()) if self._every_draw else params
         name, value = short
         self._forced[trial.number] = short
         own = self._own.get(name)
@@ -215,8 +223,8 @@ class BalancedSampler(BaseSampler):
             params.update((k, v) for k, v in self._base.sample_relative(study, trial, shared).items() if k in shared)
         if self._every_draw:
             params[name] = value
-            return self._condition(study, trial, search_space, params, (short,))
-        params.update(self._redraw(study, trial, (short,), own, search_space))
+            return self._condition(study, trial, params, (short,))
+        params.update(self._redraw(study, trial, (short,), own))
         params[name] = value
         return params
 
@@ -226,7 +234,6 @@ class BalancedSampler(BaseSampler):
         trial: FrozenTrial,
         conditions: Sequence[tuple[str, Any]],
         own: frozenset[str] | None,
-        search_space: dict[str, BaseDistribution],
         fill: bool = False,
     ) -> dict[str, Any]:
         """``own``'s parameters (None: all but the conditions') drawn by the conditional sampler from the trials that
@@ -249,7 +256,6 @@ class BalancedSampler(BaseSampler):
         self,
         study: Study,
         trial: FrozenTrial,
-        search_space: dict[str, BaseDistribution],
         params: dict[str, Any],
         conditions: tuple[tuple[str, Any], ...],
     ) -> dict[str, Any]:
@@ -270,30 +276,17 @@ class BalancedSampler(BaseSampler):
             for inner in self._order:
                 if inner in {n for n, _v in conditions} or (own is not None and inner not in own):
                     continue
-                short = self._short_within(study, trial, conditions, inner)
+                within = [t for t in self._drawn(study, trial) if all(t.params.get(n) == v for n, v in conditions)]
+                short = self._short_in(within, inner)
                 if short is not None:
                     forced_inside[inner] = short
                     nested.append((inner, short))
             params.update(forced_inside)
             fixed = (*conditions, *forced_inside.items())
-            params.update(self._redraw(study, trial, fixed, own, search_space, fill=True))
+            params.update(self._redraw(study, trial, fixed, own, fill=True))
         if nested:
             self._nested[trial.number] = tuple(nested)
         return params
-
-    def _short_within(
-        self, study: Study, trial: FrozenTrial, conditions: Sequence[tuple[str, Any]], name: str
-    ) -> Any | None:
-        """The value of ``name`` short of its floor among the sampled trials that share ``conditions``, or None."""
-        trials = study._get_trials(deepcopy=False, use_cache=False)  # noqa: SLF001
-        drawn = [t for t in trials if t.number != trial.number and _sampled(t)
-                 and all(t.params.get(n) == v for n, v in conditions)]  # fmt: skip
-        counts = dict.fromkeys(self._balance[name], 0)
-        for t in drawn:
-            v = t.params.get(name)
-            if v in counts:
-                counts[v] += 1
-        return forced_value(counts, self._min_share, sum(1 for t in drawn if name in t.params))
 
     def sample_independent(
         self, study: Study, trial: FrozenTrial, param_name: str, param_distribution: BaseDistribution

@@ -63,7 +63,7 @@ from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
 from autotune.convnet.netjson import dumps_net, loads_net
-from autotune.search import ensemble, keys, racing, refine, soup, space
+from autotune.search import ensemble, keys, racing, refine, soup, space, twins
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
 from autotune.search.denoise import DenoisedSampler
@@ -1336,6 +1336,29 @@ class Driver:
         else:
             assert outcome.state == FAILED
             self.study.tell(trial, state=TrialState.FAIL)
+        self._enqueue_twins()
+
+    def _twin_score(self, t: FrozenTrial) -> float | None:
+        """A trial's score as a parent of linear twins: its seed-race entry's (its best net at min_top or above)."""
+        entry = race_entry(t, self.spec.race_min_budget)
+        return None if entry is None else entry[0]
+
+    def _enqueue_twins(self) -> None:
+        """Enqueue the linear twins (``[study] linear_twins``) of the study's best configuration, once per parent
+        (``twins.parent``; a resumed study sees the twins it stored), before the sampler's next draw."""
+        assert self.study is not None
+        rates = self.spec.study.linear_twins
+        if not rates or self._out_of_time() or self._race_window():
+            return
+        trials = self.study.get_trials(deepcopy=False)
+        best = twins.parent(trials, self._twin_score)
+        if best is None or any(t.user_attrs.get(keys.TWIN_OF) == best.number for t in trials):
+            return
+        user: dict[str, Any] = {keys.TWIN_OF: best.number}
+        if keys.LADDER_TOP in best.user_attrs:  # a crowd setting's top: its twins train as long
+            user[keys.LADDER_TOP] = best.user_attrs[keys.LADDER_TOP]
+        for params in twins.twins(best.params, rates):
+            self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
 
     def _fail(self, trial: Trial, cause: str, *, retryable: bool) -> None:
         assert self.study is not None

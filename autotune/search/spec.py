@@ -7,7 +7,7 @@ Five tables, every key optional unless said otherwise::
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
-                  seed_soup_runs, balance_every_draw
+                  seed_soup_runs, balance_every_draw, linear_twins
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -277,6 +277,10 @@ class StudySection:
     """With balance: every draw, not only a forced one, takes the parameters a balanced value governs (a linear
     net's trainer method; a method's learning rate) from the trials sharing its values, and a balanced parameter
     keeps its share within them (each method a share of the linear draws); false: only forced draws."""
+    linear_twins: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    """Trainer methods and learning rates per input (``learning_rate_x_inputs``) for the linear twins of each new
+    best configuration: its parameters with no hidden layer, once per (method, rate), enqueued as ordinary trials
+    (``autotune.search.twins``); () none."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -484,6 +488,9 @@ class StudySpec:
         values = study.pop("balance_values")
         if values:  # left out when empty, so a study stored before the key existed still matches
             study["balance_values"] = {name: list(v) for name, v in values}
+        twins = study.pop("linear_twins")
+        if twins:  # likewise
+            study["linear_twins"] = {method: list(rates) for method, rates in twins}
         return {
             "study": study,
             "fixed": dict(self.fixed),
@@ -739,13 +746,32 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if every_draw and not balance:
         raise where.error("balance_every_draw", "conditions the draws on the balanced parameters, but balance is "
                           "empty", 'set balance (e.g. ["method"]), or remove balance_every_draw')  # fmt: skip
+    twins = _linear_twins(table.get("linear_twins", {}), where)
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        greedy, seed_runs, every_draw,
+        greedy, seed_runs, every_draw, twins,
     )  # fmt: skip
+
+
+def _linear_twins(table: Any, where: _Where) -> tuple[tuple[str, tuple[float, ...]], ...]:
+    """[study] linear_twins: a table of trainer methods, each a non-empty list of positive learning rates per input
+    (checked against the space by ``_check_twins``)."""
+    example = "e.g. linear_twins = { adagrad = [3.0, 10.0], sgd = [0.03] }"
+    if not isinstance(table, dict):
+        raise where.error("linear_twins", f"must be a table of trainer methods, got {table!r}", example)
+    out = []
+    for method, rates in table.items():
+        numbers = isinstance(rates, list) and all(isinstance(r, int | float) and not isinstance(r, bool) for r in rates)
+        if not numbers or not rates or any(not r > 0 for r in rates):
+            raise where.error("linear_twins", f"{method}: must be a non-empty list of positive learning rates per "
+                              f"input, got {rates!r}", example)  # fmt: skip
+        if len(set(rates)) != len(rates):
+            raise where.error("linear_twins", f"{method} names a rate twice: {rates!r}", "name each rate once")
+        out.append((str(method), tuple(float(r) for r in rates)))
+    return tuple(out)
 
 
 def _soup_sizes(sizes: Any, where: _Where, key: str, example: str) -> tuple[int, ...]:
@@ -1080,6 +1106,37 @@ def _check_balance(spec: StudySpec) -> None:
                               f"{name} is over 1", f"use at most {1 / len(floored):.4g}")  # fmt: skip
 
 
+def _check_twins(spec: StudySpec) -> None:
+    """[study] linear_twins needs a space that searches the layer count (0 included), the trainer method (each named
+    one among its choices) and the learning rate per input (each rate inside its range)."""
+    twins = spec.study.linear_twins
+    if not twins:
+        return
+    where = _Where(spec.source, "study")
+    dims = spec.dimensions
+    layers = dims.get("n_layers")
+    if layers is None or layers.low is None or layers.low > 0:
+        raise where.error("linear_twins", "retries configurations with no hidden layer, but [space] n_layers does not "
+                          "reach 0", "search n_layers = { low = 0, high = … }, or remove linear_twins")  # fmt: skip
+    method = dims.get("method")
+    if method is None or method.kind != "categorical":
+        raise where.error("linear_twins", "sets the twins' trainer method, but [space] does not search method",
+                          'add method = { choices = ["sgd", "adagrad"] }, or remove linear_twins')  # fmt: skip
+    rate = dims.get(LR_X_INPUTS)
+    if rate is None or rate.low is None or rate.high is None:
+        raise where.error("linear_twins", f"its rates are per input, but [space] does not search {LR_X_INPUTS}",
+                          f"search {LR_X_INPUTS} (not learning_rate), or remove linear_twins")  # fmt: skip
+    for name, rates in twins:
+        if name not in method.choices:
+            raise where.error("linear_twins", f"{name!r} is not among [space] method's choices"
+                              f"{_hint(name, [str(c) for c in method.choices])}",
+                              f"use one of {list(method.choices)}")  # fmt: skip
+        for r in rates:
+            if not rate.low <= r <= rate.high:
+                raise where.error("linear_twins", f"{name} rate {r:g} is outside [space] {LR_X_INPUTS} "
+                                  f"({rate.low:g}–{rate.high:g})", "use rates inside its range")  # fmt: skip
+
+
 def _check_combination(spec: StudySpec) -> None:
     """Cross-table rules: nothing both fixed and searched, a complete layout, a threshold below the experience."""
     src = spec.source
@@ -1126,6 +1183,7 @@ def _check_combination(spec: StudySpec) -> None:
                     f"remove {name} from [{table}] or epsilon_test_grid from [ladder]",
                 )
     _check_balance(spec)
+    _check_twins(spec)
     exp = dims.get("experience_size")
     if "start_learn_threshold" in fixed and exp is not None:
         smallest = min(exp.choices) if exp.kind == "categorical" else exp.low

@@ -1,0 +1,63 @@
+"""Linear twins: the study's best configuration retried without hidden layers, once per listed trainer method and
+learning rate (``[study] linear_twins``).
+
+Why. A net without hidden layers on a short view is the strongest family this engine has measured — the best v2
+human net (jnorthrup-v05) is one, and so was every linear net that scored 75 in the benchmark's studies — but the
+good linear nets train with another method and rate than the best hidden-layer ones (adagrad at a rate × inputs of
+1–10, where gsurma's sgd lineage learns at 0.1), so a sampler that models the method and the rate on every trial
+rarely draws them together: over nine hour-long studies, 108 linear adagrad draws, 5 at 74 or more, all at 1–10.
+The view, the traffic and the replay settings, in contrast, carry over: the best configuration's are a good guess.
+So whenever a configuration with hidden layers (or a linear one with another method or rate) becomes the study's
+best, its twins — the same parameters with ``n_layers = 0`` and each listed (method, rate per input) — are
+enqueued: ordinary trials that climb the ladder, are pruned like any other, and enter the sampler's history (and,
+being linear, the seed soups). Offline, gsurma's crowd setting as a linear adagrad net at 10 per input scored
+74.20, 73.65, 74.42 at 90k (its own setting at 90k: 74.0 on average).
+
+Pure functions of params and trials; ``autotune.search.driver`` enqueues what they return.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
+
+from optuna.trial import FrozenTrial
+
+from autotune.search import keys
+from autotune.search.spec import LR_X_INPUTS
+
+__all__ = ["TWIN_SKIP", "parent", "twins"]
+
+TWIN_SKIP = (keys.RETRY_OF, keys.RACE_OF, keys.REFINE_OF, keys.COPIED_FROM, keys.SOUP_OF, keys.TWIN_OF)
+"""A trial with one of these user attrs is no parent: a retry, a race, refinement or soup run (their scores are not
+their configuration's first measure), copied history, or a twin itself (its twins are its siblings)."""
+
+
+def twins(params: Mapping[str, Any], rates: Iterable[tuple[str, Sequence[float]]]) -> list[dict[str, Any]]:
+    """``params`` without hidden layers, once per (method, rate per input) of ``rates``, in order; the parameters
+    the layout leaves unused (``neurons_i``, ``activation_i``) keep their values. A twin equal to ``params`` is left
+    out."""
+    out = []
+    for method, values in rates:
+        for rate in values:
+            twin = {**params, "n_layers": 0, "method": method, LR_X_INPUTS: float(rate)}
+            if twin != dict(params) and twin not in out:
+                out.append(twin)
+    return out
+
+
+def parent(trials: Sequence[FrozenTrial], score: Callable[[FrozenTrial], float | None]) -> FrozenTrial | None:
+    """The trial to twin: the best by ``score`` (None: not a candidate; the driver's is its best net trained at the
+    ladder's min_top or above, so a lucky 10k screening draw is no parent) of the study's first measures of
+    configurations (``TWIN_SKIP`` left out), the earlier on a tie; None before any."""
+    best: tuple[float, int, FrozenTrial] | None = None
+    for t in trials:
+        if any(k in t.user_attrs for k in TWIN_SKIP) or "n_layers" not in t.params:
+            continue
+        s = score(t)
+        if s is None or not math.isfinite(s):
+            continue
+        if best is None or (s, -t.number) > best[:2]:
+            best = (s, -t.number, t)
+    return None if best is None else best[2]

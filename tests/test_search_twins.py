@@ -1,0 +1,208 @@
+"""Linear twins (``[study] linear_twins``): the best configuration retried without hidden layers per method and rate.
+
+The twins and the parent as pure rules, the spec key and its checks against the space, and the driver on a journal
+study: which trial it twins, what a twin records and trains, once per parent."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import optuna
+import pytest
+
+from autotune import TrainConfig
+from autotune.search import keys, space, twins
+from autotune.search.driver import Driver
+from autotune.search.gate import distributions
+from autotune.search.objective import TrialOutcome
+from autotune.search.spec import LR_X_INPUTS, SpecError, StudySpec, parse_spec
+from autotune.search.storage import open_storage
+from tests.conftest import FakePool
+
+COMPLETE = optuna.trial.TrialState.COMPLETE
+PRUNED = optuna.trial.TrialState.PRUNED
+HIDDEN = TrainConfig(
+    ruleset="v2", lanes_side=1, patches_ahead=3, other_agents=1, train_iterations=1200, temporal_window=0,
+    experience_size=500, start_learn_threshold=100, learning_steps_burnin=120, learning_steps_total=600,
+    layers="fc:4:relu|fc:3:tanh", batch_size=8, learning_rate=0.001,
+)  # fmt: skip
+RATES = {"adagrad": [3.0, 10.0], "sgd": [0.03]}
+
+
+def _data(**study: Any) -> dict[str, Any]:
+    return {
+        "study": {"name": "twins", "n_trials": 50, "timeout_s": 3600, "seed": 0, **study},
+        "ladder": {"rungs": [400, 1200]},
+        "fixed": {"otherAgents": 1, "temporal_window": 0, "experience_size": 500, "batch_size": 8},
+        "space": {
+            "lanes_side": {"low": 0, "high": 2}, "patches_ahead": {"low": 1, "high": 4},
+            "learning_steps_burnin_fraction": {"low": 0.01, "high": 0.2, "log": True},
+            LR_X_INPUTS: {"low": 1e-4, "high": 10.0, "log": True},
+            "method": {"choices": ["sgd", "adagrad", "adadelta"]},
+            "n_layers": {"low": 0, "high": 2}, "neurons": {"low": 2, "high": 8},
+            "activation": {"choices": ["relu", "tanh"]},
+        },
+    }  # fmt: skip
+
+
+def _spec(**study: Any) -> StudySpec:
+    return parse_spec(_data(**study), source="twins.toml")
+
+
+# -- the pure rules ---------------------------------------------------------------------------
+
+
+def test_twins_are_the_params_without_hidden_layers_per_method_and_rate() -> None:
+    params = {"n_layers": 2, "neurons_0": 4, "activation_0": "relu", "method": "sgd", LR_X_INPUTS: 0.1,
+              "lanes_side": 1, "patches_ahead": 3}  # fmt: skip
+    made = twins.twins(params, tuple(RATES.items()))
+    assert [(t["method"], t[LR_X_INPUTS]) for t in made] == [("adagrad", 3.0), ("adagrad", 10.0), ("sgd", 0.03)]
+    for t in made:  # the view and the unused layout keep their values: only the layer count, method and rate move
+        assert t["n_layers"] == 0 and {k: v for k, v in t.items() if k not in ("n_layers", "method", LR_X_INPUTS)} == {
+            k: v for k, v in params.items() if k not in ("n_layers", "method", LR_X_INPUTS)}  # fmt: skip
+    linear = {**params, "n_layers": 0, "method": "adagrad", LR_X_INPUTS: 3.0}
+    made = twins.twins(linear, tuple(RATES.items()))  # a linear parent is not its own twin
+    assert [(t["method"], t[LR_X_INPUTS]) for t in made] == [("adagrad", 10.0), ("sgd", 0.03)]
+
+
+def _frozen(number: int, value: float | None, n_layers: int = 1, **attrs: Any) -> optuna.trial.FrozenTrial:
+    t = optuna.trial.create_trial(
+        params={"n_layers": n_layers}, distributions={"n_layers": optuna.distributions.IntDistribution(0, 2)},
+        value=value, state=COMPLETE if value is not None else PRUNED, user_attrs=attrs,
+    )  # fmt: skip
+    t.number = number
+    return t
+
+
+def test_the_parent_is_the_best_first_measure_of_a_configuration() -> None:
+    score = lambda t: t.value  # noqa: E731
+    assert twins.parent([], score) is None
+    trials = [_frozen(0, 72.0), _frozen(1, 74.0), _frozen(2, 74.0), _frozen(3, None)]
+
+    def number(trials: list[optuna.trial.FrozenTrial], score: Any = score) -> int | None:
+        found = twins.parent(trials, score)
+        return None if found is None else found.number
+
+    assert number(trials) == 1  # the earlier on a tie; no score: no candidate
+    for key in twins.TWIN_SKIP:  # a rerun, a soup, copied history or a twin is no parent, however good
+        assert number([*trials, _frozen(4, 76.0, **{key: 0})]) == 1
+    assert number([*trials, _frozen(4, 76.0, n_layers=0)]) == 4  # a linear one can be
+    assert number(trials, lambda t: None if t.number == 1 else t.value) == 2
+
+
+# -- the spec ---------------------------------------------------------------------------------
+
+
+def test_linear_twins_are_checked_against_the_space() -> None:
+    assert _spec().study.linear_twins == () and "linear_twins" not in _spec().to_dict()["study"]
+    spec = _spec(linear_twins=RATES)
+    assert spec.study.linear_twins == (("adagrad", (3.0, 10.0)), ("sgd", (0.03,)))
+    assert spec.to_dict()["study"]["linear_twins"] == RATES and parse_spec(spec.to_dict(), source="twins.toml") == spec
+    for bad, match in (
+        ([3.0], r"\[study\] linear_twins: must be a table of trainer methods, got \[3.0\]; e.g. linear_twins ="),
+        ({"adagrad": []}, r"linear_twins: adagrad: must be a non-empty list of positive learning rates per input"),
+        ({"adagrad": [0.0]}, r"linear_twins: adagrad: must be a non-empty list"),
+        ({"adagrad": [True]}, r"linear_twins: adagrad: must be a non-empty list"),
+        ({"adagrad": [1.0, 1.0]}, r"linear_twins: adagrad names a rate twice"),
+        ({"adagard": [1.0]}, r"linear_twins: 'adagard' is not among \[space\] method's choices.*adagrad"),
+        ({"adagrad": [20.0]}, r"linear_twins: adagrad rate 20 is outside \[space\] learning_rate_x_inputs "
+                              r"\(0.0001–10\)"),
+    ):  # fmt: skip
+        with pytest.raises(SpecError, match=match):
+            _spec(linear_twins=bad)
+    data = _data(linear_twins=RATES)
+    data["space"]["n_layers"] = {"low": 1, "high": 2}
+    with pytest.raises(SpecError, match=r"linear_twins: .*n_layers does not reach 0; search n_layers = \{ low = 0"):
+        parse_spec(data, source="x")
+    data = _data(linear_twins=RATES)
+    del data["space"][LR_X_INPUTS]
+    data["space"]["learning_rate"] = {"low": 1e-5, "high": 0.1, "log": True}
+    with pytest.raises(SpecError, match=r"linear_twins: its rates are per input, .*search learning_rate_x_inputs"):
+        parse_spec(data, source="x")
+    data = _data(linear_twins=RATES)
+    del data["space"]["method"]
+    with pytest.raises(SpecError, match=r"linear_twins: .*\[space\] does not search method"):
+        parse_spec(data, source="x")
+
+
+# -- the driver -------------------------------------------------------------------------------
+
+
+def _driver(tmp_path: Path, **study: Any) -> tuple[Driver, optuna.Study, dict[str, Any]]:
+    spec = _spec(linear_twins=RATES, **study).with_overrides(storage=str(tmp_path / "j.log"))
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study_ = driver.open_study()
+    driver.pool, driver._t0 = FakePool(), time.perf_counter()  # noqa: SLF001
+    return driver, study_, distributions(spec)
+
+
+def _add(study: optuna.Study, dists: dict[str, Any], params: dict[str, Any], value: float | None,
+         rungs: list[tuple[int, float]], **attrs: Any) -> int:  # fmt: skip
+    config = space.to_config(_spec(), params, 1200 if value is not None else rungs[-1][0]).to_mapping()
+    study.add_trial(optuna.trial.create_trial(
+        params=params, distributions=dists, value=value, state=COMPLETE if value is not None else PRUNED,
+        user_attrs={keys.CONFIG: config, keys.RUNGS: [{keys.BUDGET: b, keys.SCORE: s} for b, s in rungs], **attrs},
+    ))  # fmt: skip
+    return len(study.trials) - 1
+
+
+def test_the_driver_enqueues_the_twins_of_each_new_best_configuration_once(tmp_path: Path) -> None:
+    driver, study, dists = _driver(tmp_path)
+    hidden = space.encode(driver.spec, HIDDEN)
+    driver._enqueue_twins()  # noqa: SLF001 - no trial yet: nothing
+    assert not study.trials
+    _add(study, dists, {**hidden, "lanes_side": 0}, None, [(400, 76.0)])  # a 400-iteration screen: no parent
+    driver._enqueue_twins()  # noqa: SLF001
+    assert len(study.trials) == 1
+    first = _add(study, dists, hidden, 73.0, [(400, 70.0), (1200, 73.0)], **{keys.LADDER_TOP: 1})
+    driver._enqueue_twins()  # noqa: SLF001
+    waiting = [t.system_attrs["fixed_params"] for t in study.get_trials(states=(optuna.trial.TrialState.WAITING,))]
+    assert [(t["n_layers"], t["method"], t[LR_X_INPUTS]) for t in waiting] == [
+        (0, "adagrad", 3.0), (0, "adagrad", 10.0), (0, "sgd", 0.03)]  # fmt: skip
+    for t in study.get_trials(states=(optuna.trial.TrialState.WAITING,)):
+        assert t.user_attrs == {keys.TWIN_OF: first, keys.LADDER_TOP: 1}
+    for t in waiting:
+        assert {k: v for k, v in t.items() if k not in ("n_layers", "method", LR_X_INPUTS)} == {
+            k: v for k, v in hidden.items() if k not in ("n_layers", "method", LR_X_INPUTS)}  # fmt: skip
+    driver._enqueue_twins()  # noqa: SLF001 - once per parent
+    assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 3
+
+    # the driver trains a twin like a sampled trial: its params' linear configuration, at its parent's top
+    assert driver._launch_next(0)  # noqa: SLF001
+    task = driver.pool.tasks[-1]
+    assert task.config["layers"] == "" and task.config["method"] == "adagrad" and task.rungs == (400, 1200)
+    twin = driver._running.pop(0).trial  # noqa: SLF001
+    twin_number = twin.number
+    # a better twin is no parent, and a finished trial (any state) triggers the check: nothing new
+    rungs = [{keys.BUDGET: 400, keys.SCORE: 74.0}, {keys.BUDGET: 1200, keys.SCORE: 75.0}]
+    driver._finish(twin, TrialOutcome(twin_number, "complete", 75.0, None, {  # noqa: SLF001
+        keys.CONFIG: task.config, keys.RUNGS: rungs}))  # fmt: skip
+    assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 2
+    # a new best configuration with hidden layers: its twins, enqueued by the finish of any trial
+    better = {**hidden, "patches_ahead": 4}
+    second = _add(study, dists, better, 76.0, [(400, 70.0), (1200, 76.0)])
+    assert driver._launch_next(0)  # noqa: SLF001 - the next twin, pruned at its first rung
+    run = driver._running.pop(0).trial  # noqa: SLF001
+    driver._finish(run, TrialOutcome(run.number, "pruned", None, "pruned", {  # noqa: SLF001
+        keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 60.0}]}))  # fmt: skip
+    waiting_now = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    new = [t for t in waiting_now if t.user_attrs[keys.TWIN_OF] == second]
+    assert [t.system_attrs["fixed_params"]["patches_ahead"] for t in new] == [4, 4, 4]
+    assert len(waiting_now) == 1 + 3 and keys.LADDER_TOP not in new[0].user_attrs
+
+
+def test_no_twins_without_the_key_or_in_the_race_window(tmp_path: Path) -> None:
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    _add(study, distributions(spec), space.encode(spec, HIDDEN), 74.0, [(1200, 74.0)])
+    driver._enqueue_twins()  # noqa: SLF001
+    assert len(study.trials) == 1
+    driver, study, dists = _driver(tmp_path / "race")
+    _add(study, dists, space.encode(driver.spec, HIDDEN), 74.0, [(1200, 74.0)])
+    driver._t0 = time.perf_counter() - 3600 * 0.8  # noqa: SLF001 - in the last quarter: the seed race's time
+    driver._enqueue_twins()  # noqa: SLF001
+    assert len(study.trials) == 1

@@ -169,10 +169,11 @@ def test_the_driver_enqueues_the_twins_of_each_new_best_configuration_once(tmp_p
     driver._enqueue_twins()  # noqa: SLF001 - once per parent
     assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 3
 
-    # the driver trains a twin like a sampled trial: its params' linear configuration, at its parent's top
+    # the driver trains a twin once, at its parent's budget (no screening rung), its score kept from the pruner
     assert driver._launch_next(0)  # noqa: SLF001
     task = driver.pool.tasks[-1]
-    assert task.config["layers"] == "" and task.config["method"] == "adagrad" and task.rungs == (400, 1200)
+    assert task.config["layers"] == "" and task.config["method"] == "adagrad" and task.rungs == (1200,)
+    assert task.config["train_iterations"] == 1200 and driver._running[0].silent  # noqa: SLF001
     twin = driver._running.pop(0).trial  # noqa: SLF001
     twin_number = twin.number
     # a better twin is no parent, and a finished trial (any state) triggers the check: nothing new
@@ -182,7 +183,7 @@ def test_the_driver_enqueues_the_twins_of_each_new_best_configuration_once(tmp_p
     assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 2
     # a new best configuration with hidden layers: its twins, enqueued by the finish of any trial
     better = {**hidden, "patches_ahead": 4}
-    second = _add(study, dists, better, 76.0, [(400, 70.0), (1200, 76.0)])
+    second = _add(study, dists, better, 74.5, [(400, 76.0), (1200, 74.5)])  # its top: its twins at 1200
     assert driver._launch_next(0)  # noqa: SLF001 - the next twin, pruned at its first rung
     run = driver._running.pop(0).trial  # noqa: SLF001
     driver._finish(run, TrialOutcome(run.number, "pruned", None, "pruned", {  # noqa: SLF001
@@ -190,7 +191,7 @@ def test_the_driver_enqueues_the_twins_of_each_new_best_configuration_once(tmp_p
     waiting_now = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
     new = [t for t in waiting_now if t.user_attrs[keys.TWIN_OF] == second]
     assert [t.system_attrs["fixed_params"]["patches_ahead"] for t in new] == [4, 4, 4]
-    assert len(waiting_now) == 1 + 3 and keys.LADDER_TOP not in new[0].user_attrs
+    assert len(waiting_now) == 1 + 3 and new[0].user_attrs[keys.LADDER_TOP] == 1
 
 
 def test_no_twins_without_the_key_or_in_the_race_window(tmp_path: Path) -> None:

@@ -104,7 +104,7 @@ def test_the_greedy_soup_adds_the_best_net_not_yet_tried_to_the_best_set_so_far(
     assert ensemble.next_seed_soup(groups, {}, (2,), 0.5, 75.3, 1.0, {}) == (1, (1, 2))
 
 
-def test_the_next_seed_run_is_the_first_linear_candidate_near_the_best_with_seeds_left() -> None:
+def test_the_next_seed_run_is_the_highest_linear_candidate_near_the_best_with_seeds_left() -> None:
     a, b = Entrant(3, 74.9, "a"), Entrant(8, 74.2, "b")
     assert ensemble.next_seed_run([a, b], [], {}, 75.0, 0.5, 2) == RaceRun(3, 0)
     assert ensemble.next_seed_run([a, b], [(3, 0), (3, 1)], {}, 75.0, 0.5, 2) is None  # b is 0.8 below the best
@@ -113,6 +113,8 @@ def test_the_next_seed_run_is_the_first_linear_candidate_near_the_best_with_seed
     assert ensemble.next_seed_run([a], [(3, 1)], {3: 75.2}, 75.2, 0.5, 4) == RaceRun(3, 0)  # the first free index
     assert ensemble.next_seed_run([a], [(3, 1)], {3: 74.0}, 75.2, 0.5, 4) is None  # its seeds trail the best
     assert ensemble.next_seed_run([b], [], {}, None, 0.5, 1) == RaceRun(8, 0)
+    assert ensemble.next_seed_run([a, b], [], {3: 74.6, 8: 74.9}, 75.0, 0.5, 4) == RaceRun(8, 0)  # the higher level
+    assert ensemble.next_seed_run([a, b], [], {3: 73.1, 8: 72.9}, 75.0, 2.0, 4) == RaceRun(3, 0)  # a wider reach
 
 
 def test_seed_soups_and_seed_soup_runs_are_checked() -> None:
@@ -224,3 +226,50 @@ def test_the_driver_grows_a_greedy_seed_soup_from_the_best_set_so_far(tmp_path: 
     assert made.user_attrs[keys.SOUP_OF] == [0, 1, 2] and made.user_attrs[keys.SEED_SOUP_OF] == 0
     study.tell(driver._running.pop(1).trial, 74.1)  # noqa: SLF001
     assert not driver._launch_seed_soup(0)  # noqa: SLF001 - every net was tried with the best set {0, 1}
+
+
+def test_seed_soup_reach_is_checked() -> None:
+    assert _spec().study.seed_soup_reach == 0.5
+    assert _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=4, seed_soup_reach=2.0).study.seed_soup_reach == 2.0
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_reach: must be 0.5 mph or more, got 0.2"):
+        _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=4, seed_soup_reach=0.2)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_reach: .*seed_soup_runs = 0; set seed_soup_runs"):
+        _spec(seed_soups=[2], seed_soup_reach=2.0)
+
+
+def test_a_wider_seed_soup_reach_shares_the_refinement_worker(tmp_path: Path) -> None:
+    """A linear configuration 1.5 mph below the best net: outside the seed runs' own reach (0.5), it gets no seed; with
+    ``seed_soup_reach = 2.0`` it gets every other run of the refinement's worker, refinement of the best net the
+    others; once the best net had its refinement runs, the seeds take that worker."""
+    for reach in (0.5, 2.0):
+        spec = _spec(race_configs=2, race_seeds=1, n_trials=40, timeout_s=3600, refine_share=0.5, refine_runs=2,
+                     refine_iterations=3000, seed_soups=[2], seed_soup_runs=8, seed_soup_reach=reach).with_overrides(
+                         storage=str(tmp_path / f"{reach}.log"), workers=2)  # fmt: skip
+        driver, study, storages, dists, params = _driver_on_journal(spec)
+        hidden = TINY.replace(train_iterations=1200)
+        study.add_trial(optuna.trial.create_trial(
+            params=params, distributions=dists, value=75.0, state=COMPLETE,
+            user_attrs={keys.CONFIG: hidden.to_mapping(), keys.ARTIFACT_NET_JSON: _upload(storages, study, dumps_net(
+                train(hidden.replace(train_iterations=0), seed=0, quick_eval=False).convnet()))},
+        ))  # fmt: skip
+        study.add_trial(optuna.trial.create_trial(
+            params=params, distributions=dists, value=73.5, state=COMPLETE,
+            user_attrs={keys.CONFIG: LINEAR.replace(train_iterations=1200).to_mapping(),
+                        keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(0))},
+        ))  # fmt: skip
+        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        kinds = []
+        for _ in range(6):
+            assert driver._launch_refine(0)  # noqa: SLF001
+            run = driver._running.pop(0).trial  # noqa: SLF001
+            attrs = study.trials[run.number].user_attrs
+            kinds.append("seed" if attrs.get(keys.SEED_SOUP_RUN) else "refine" if keys.REFINE_OF in attrs else "?")
+            if kinds[-1] == "seed":
+                assert attrs[keys.RACE_OF] == 1
+            study.tell(run, 70.0)
+            if reach == 0.5 and len(kinds) == 2:
+                break
+        if reach == 0.5:  # the best net's 2 runs, then nothing near enough: back to the search
+            assert kinds == ["refine", "refine"] and not driver._launch_refine(0)  # noqa: SLF001
+        else:
+            assert kinds == ["seed", "refine", "seed", "refine", "seed", "seed"]

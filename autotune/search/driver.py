@@ -80,7 +80,7 @@ from autotune.search.objective import (
 )
 from autotune.search.records import RecordError, net_rank, net_text, scored_nets
 from autotune.search.seeds import derived_seed
-from autotune.search.spec import SpecError, StudySpec
+from autotune.search.spec import SEED_RUN_REACH, SEED_SOUP_REACH, SpecError, StudySpec
 from autotune.search.storage import GRACE_PERIOD_S, HEARTBEAT_INTERVAL_S, Storages
 from sim.config import ConfigError
 
@@ -148,9 +148,6 @@ RACE_MARGIN = 1.25
 """A race run is planned where its predicted seconds × this fit the time left: the cost model's median error is
 10–35 % in the benchmark studies, and a race run the deadline stops scores nothing."""
 
-SEED_SOUP_REACH = 1.0
-"""mph below the study's best net within which a linear configuration's seeds are souped: a soup of seeds scored up to
-0.44 above its best one (75.25 → 75.69)."""
 SEED_SOUP_MIN_LEFT_S = 20.0
 """No seed soup starts with fewer seconds left: its official evaluation takes 2–10 s on one core."""
 
@@ -816,19 +813,23 @@ class Driver:
             return False
         if not self._refine_open():
             return False
-        if st.seed_soup_runs and self._launch_seed_run(slot):
+        if st.seed_soup_runs and self._launch_seed_run(slot, SEED_RUN_REACH):
             return True
         trials = self.study.get_trials(deepcopy=False)
         refine_ofs = [  # the training runs: a soup trains nothing, and uses neither a net's runs nor a seed
             t.user_attrs.get(keys.REFINE_OF) if not {keys.RETRY_OF, keys.SOUP_OF} & t.user_attrs.keys() else None
             for t in trials
         ]  # fmt: skip
+        wide = st.seed_soup_runs > 0 and st.seed_soup_reach > SEED_RUN_REACH
+        seeds = sum(1 for t in trials if t.user_attrs.get(keys.SEED_SOUP_RUN) and keys.RETRY_OF not in t.user_attrs)
+        if wide and seeds <= sum(r is not None for r in refine_ofs) and self._launch_seed_run(slot, st.seed_soup_reach):
+            return True  # a linear configuration further below the best: every other run of this worker
         parent = refine.choose_parent(
             ((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials), refine_ofs,
             st.refine_runs, self.spec.race_min_budget,
         )  # fmt: skip
-        if parent is None:
-            return False  # no net yet, or the nets near the best had their runs: the worker goes back to the search
+        if parent is None:  # no net yet, or the nets near the best had their runs: seeds, else back to the search
+            return wide and self._launch_seed_run(slot, st.seed_soup_reach)
         source = trials[parent.trial]
         if st.refine_soups and self._launch_soup(slot, trials, parent):
             return True
@@ -878,8 +879,8 @@ class Driver:
     def _launch_seed_soup(self, slot: int) -> bool:
         """Score the next seed soup of a linear configuration on ``slot`` (``ensemble.next_seed_soup`` over ``[study]
         seed_soups``, then its greedy soup with ``seed_soup_greedy``: its nets within ``refine_soup_span`` of its
-        best, configurations within ``SEED_SOUP_REACH`` of the study's best net); False when there is none, the
-        queue comes first, or the deadline is near.
+        best, configurations within ``SEED_SOUP_REACH``, or ``seed_soup_reach`` when wider, of the study's best net);
+        False when there is none, the queue comes first, or the deadline is near.
 
         The soup is a refinement trial of its configuration's best net (``refine_of``: a soup that beats it is a
         parent like any refinement run that did), with ``soup_of`` its ingredients and ``seed_soup_of`` the
@@ -904,7 +905,8 @@ class Driver:
                 if t.state == TrialState.COMPLETE and t.value is not None:
                     scored.setdefault(int(owner), []).append((soup_of, float(t.value)))
         pick = ensemble.next_seed_soup(
-            groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials), SEED_SOUP_REACH,
+            groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials),
+            max(SEED_SOUP_REACH, st.seed_soup_reach),
             scored if st.seed_soup_greedy else None,
         )  # fmt: skip
         if pick is None:
@@ -918,10 +920,11 @@ class Driver:
         })  # fmt: skip
         return self._launch_next(slot)
 
-    def _launch_seed_run(self, slot: int) -> bool:
-        """Start a fresh seed of a linear configuration near the study's best on ``slot``, for its seed soups
-        (``ensemble.next_seed_run``, up to ``[study] seed_soup_runs`` seeds): a race run before the race, on the
-        race's seeds, so the race counts it. The caller (``_launch_refine``) has checked the refinement's share."""
+    def _launch_seed_run(self, slot: int, reach: float) -> bool:
+        """Start a fresh seed of a linear configuration within ``reach`` mph of the study's best net on ``slot``, for
+        its seed soups (``ensemble.next_seed_run``, up to ``[study] seed_soup_runs`` seeds): a race run before the
+        race, on the race's seeds, so the race counts it. The caller (``_launch_refine``) has checked the
+        refinement's share."""
         assert self.study is not None
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)
@@ -945,7 +948,7 @@ class Driver:
                 level[int(of)] = max(level.get(int(of), -math.inf), float(t.value))
         _results, launched = self._race_results()
         run = ensemble.next_seed_run(
-            candidates, launched, level, _best_score(trials), refine.PARENT_SPAN, st.seed_soup_runs
+            candidates, launched, level, _best_score(trials), reach, st.seed_soup_runs
         )  # fmt: skip
         return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.SEED_SOUP_RUN)
 

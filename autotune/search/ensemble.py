@@ -134,13 +134,14 @@ def next_seed_run(
     reach: float,
     max_runs: int,
 ) -> RaceRun | None:
-    """The next fresh-seed run for a linear configuration's soups, or None: the first of ``candidates`` (the race's
-    possible entrants, best first, linear ones only) whose ``level`` (its best net or seed soup; else its entrant
-    score) is within ``reach`` mph of the study's ``best`` net and that started fewer than ``max_runs`` race seeds
-    (``launched``: (race_of, seed index) of every race run so far); its next seed is the first index it has not
-    started (the race's seeds, so the race reuses them)."""
+    """The next fresh-seed run for a linear configuration's soups, or None: of ``candidates`` (the race's possible
+    entrants, linear ones only), the one with the highest ``level`` (its best net or seed soup; else its entrant
+    score; ties in the candidates' order) within ``reach`` mph of the study's ``best`` net that started fewer than
+    ``max_runs`` race seeds (``launched``: (race_of, seed index) of every race run so far); its next seed is the
+    first index it has not started (the race's seeds, so the race reuses them)."""
     started = set(launched)
-    for e in candidates:
+    ranked = sorted(enumerate(candidates), key=lambda c: (-level.get(c[1].number, c[1].value), c[0]))
+    for _i, e in ranked:
         mine = {s for (n, s) in started if n == e.number}
         if len(mine) >= max_runs:
             continue

@@ -7,7 +7,7 @@ Five tables, every key optional unless said otherwise::
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
-                  seed_soup_runs, balance_every_draw, linear_twins
+                  seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -99,11 +99,17 @@ REFINE_RUNS = 32
 """Default ``[study] refine_runs``: measured outside a study, the climbs from gsurma's setting passed their parent
 within 8–32 runs or not at all (``bench/refine.py``); in a crowd-prior study 116 runs of one net found nothing
 above it."""
+SEED_RUN_REACH = 0.5
+"""Default ``[study] seed_soup_reach`` [mph]: a linear configuration within it of the study's best net takes the
+refinement's worker for its fresh seeds (``refine.PARENT_SPAN``, the refinement's own reach of a parent)."""
+SEED_SOUP_REACH = 1.0
+"""[mph] A linear configuration's seed soups are scored while its best net is within this of the study's best (or
+``seed_soup_reach``, when wider): a soup of seeds scored up to 0.44 above its best one (75.25 → 75.69)."""
 BALANCE_MIN_SHARE = 0.2
-BALANCEABLE_SAMPLERS = ("tpe", "random")
-"""Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
 """Default ``[study] balance_min_share``: each value of a balanced parameter (3 trainer methods) at least a fifth
 of the sampled trials, so the sampler's favourite keeps up to 60 %."""
+BALANCEABLE_SAMPLERS = ("tpe", "random")
+"""Samplers ``[study] balance`` works with: their model is the history a value's subset restricts."""
 FRACTIONS = ("learning_steps_burnin_fraction", "learning_steps_total_fraction")
 """Ladder studies: ε's burn-in and decay length as fractions of the rung's budget (``autotune.search.ladder``)."""
 LR_X_INPUTS = "learning_rate_x_inputs"
@@ -273,6 +279,10 @@ class StudySection:
     seed_soup_runs: int = 0
     """With seed_soups and refine_share: the most fresh seeds a linear configuration near the study's best gets on
     the refinement's workers before the race, for its soups (0: only the race's)."""
+    seed_soup_reach: float = SEED_RUN_REACH
+    """With seed_soup_runs: mph below the study's best net within which a linear configuration's level (its best seed
+    or soup) gets fresh seeds — beyond 0.5 only every other run of the refinement's worker, refinement runs the
+    others — and its soups are scored (within 1.0 at least)."""
     balance_every_draw: bool = False
     """With balance: every draw, not only a forced one, takes the parameters a balanced value governs (a linear
     net's trainer method; a method's learning rate) from the trials sharing its values, and a balanced parameter
@@ -732,6 +742,13 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if seed_runs and not seed_soups:
         raise where.error("seed_soup_runs", "trains seeds for the seed soups, but seed_soups is empty",
                           "set seed_soups (e.g. [2, 3, 4]), or remove seed_soup_runs")  # fmt: skip
+    reach = _float(table.get("seed_soup_reach", d.seed_soup_reach), f"{src}: [study] seed_soup_reach", 0.0, 100.0)
+    if reach < SEED_RUN_REACH:
+        raise where.error("seed_soup_reach", f"must be {SEED_RUN_REACH} mph or more, got {reach}",
+                          f"e.g. seed_soup_reach = 2.0, or leave it out ({SEED_RUN_REACH})")  # fmt: skip
+    if reach != d.seed_soup_reach and not seed_runs:
+        raise where.error("seed_soup_reach", "sets which linear configurations get seed runs, but seed_soup_runs = 0",
+                          "set seed_soup_runs (e.g. 64), or remove seed_soup_reach")  # fmt: skip
     for key, value in (("refine_iterations", refine_iterations), ("refine_learning_rate", refine_lr),
                        ("refine_runs", refine_runs), ("refine_start", refine_start),
                        ("refine_soups", soups), ("refine_soup_span", span if not seed_soups else d.refine_soup_span),
@@ -752,7 +769,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        greedy, seed_runs, every_draw, twins,
+        greedy, seed_runs, reach, every_draw, twins,
     )  # fmt: skip
 
 

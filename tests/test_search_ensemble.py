@@ -239,10 +239,10 @@ def test_seed_soup_reach_is_checked() -> None:
 
 def test_a_wider_seed_soup_reach_shares_the_refinement_worker(tmp_path: Path) -> None:
     """A linear configuration 1.5 mph below the best net: outside the seed runs' own reach (0.5), it gets no seed; with
-    ``seed_soup_reach = 2.0`` it gets every other run of the refinement's worker, refinement of the best net the
-    others; once the best net had its refinement runs, the seeds take that worker."""
+    ``seed_soup_reach = 2.0`` it first gets its ``PROBE_SEEDS`` seeds, then every other run of the refinement's worker
+    (refinement of the best net the others), and all of them once the best net had its refinement runs."""
     for reach in (0.5, 2.0):
-        spec = _spec(race_configs=2, race_seeds=1, n_trials=40, timeout_s=3600, refine_share=0.5, refine_runs=2,
+        spec = _spec(race_configs=2, race_seeds=1, n_trials=40, timeout_s=3600, refine_share=0.5, refine_runs=6,
                      refine_iterations=3000, seed_soups=[2], seed_soup_runs=8, seed_soup_reach=reach).with_overrides(
                          storage=str(tmp_path / f"{reach}.log"), workers=2)  # fmt: skip
         driver, study, storages, dists, params = _driver_on_journal(spec)
@@ -258,18 +258,13 @@ def test_a_wider_seed_soup_reach_shares_the_refinement_worker(tmp_path: Path) ->
                         keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(0))},
         ))  # fmt: skip
         driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
-        kinds = []
-        for _ in range(6):
-            assert driver._launch_refine(0)  # noqa: SLF001
+        kinds = ""
+        while driver._launch_refine(0):  # noqa: SLF001
             run = driver._running.pop(0).trial  # noqa: SLF001
             attrs = study.trials[run.number].user_attrs
-            kinds.append("seed" if attrs.get(keys.SEED_SOUP_RUN) else "refine" if keys.REFINE_OF in attrs else "?")
-            if kinds[-1] == "seed":
-                assert attrs[keys.RACE_OF] == 1
+            kinds += "S" if attrs.get(keys.SEED_SOUP_RUN) else "R" if keys.REFINE_OF in attrs else "?"
+            assert kinds[-1] != "S" or attrs[keys.RACE_OF] == 1
             study.tell(run, 70.0)
-            if reach == 0.5 and len(kinds) == 2:
-                break
-        if reach == 0.5:  # the best net's 2 runs, then nothing near enough: back to the search
-            assert kinds == ["refine", "refine"] and not driver._launch_refine(0)  # noqa: SLF001
-        else:
-            assert kinds == ["seed", "refine", "seed", "refine", "seed", "seed"]
+        # 0.5: the best net's 6 runs, then nothing near enough (back to the search); 2.0: 4 probe seeds, then
+        # refinement until it has as many runs, then every other run, then the seeds alone (8 in all)
+        assert kinds == ("RRRRRR" if reach == 0.5 else "SSSSRRRRSRSRSS")

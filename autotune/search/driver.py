@@ -813,8 +813,9 @@ class Driver:
             return False
         if not self._refine_open():
             return False
-        if st.seed_soup_runs and self._launch_seed_run(slot, SEED_RUN_REACH):
-            return True
+        if st.seed_soup_runs and (self._launch_seed_run(slot, st.seed_soup_reach, ensemble.PROBE_SEEDS)
+                                  or self._launch_seed_run(slot, SEED_RUN_REACH)):  # fmt: skip
+            return True  # a configuration in reach first gets its probe seeds; one near the best, all its seeds
         trials = self.study.get_trials(deepcopy=False)
         refine_ofs = [  # the training runs: a soup trains nothing, and uses neither a net's runs nor a seed
             t.user_attrs.get(keys.REFINE_OF) if not {keys.RETRY_OF, keys.SOUP_OF} & t.user_attrs.keys() else None
@@ -920,11 +921,11 @@ class Driver:
         })  # fmt: skip
         return self._launch_next(slot)
 
-    def _launch_seed_run(self, slot: int, reach: float) -> bool:
+    def _launch_seed_run(self, slot: int, reach: float, runs: int | None = None) -> bool:
         """Start a fresh seed of a linear configuration within ``reach`` mph of the study's best net on ``slot``, for
-        its seed soups (``ensemble.next_seed_run``, up to ``[study] seed_soup_runs`` seeds): a race run before the
-        race, on the race's seeds, so the race counts it. The caller (``_launch_refine``) has checked the
-        refinement's share."""
+        its seed soups (``ensemble.next_seed_run``, up to ``runs`` or ``[study] seed_soup_runs`` seeds, the fewer):
+        a race run before the race, on the race's seeds, so the race counts it. The caller (``_launch_refine``)
+        has checked the refinement's share."""
         assert self.study is not None
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)
@@ -948,7 +949,7 @@ class Driver:
                 level[int(of)] = max(level.get(int(of), -math.inf), float(t.value))
         _results, launched = self._race_results()
         run = ensemble.next_seed_run(
-            candidates, launched, level, _best_score(trials), reach, st.seed_soup_runs
+            candidates, launched, level, _best_score(trials), reach, min(runs or st.seed_soup_runs, st.seed_soup_runs)
         )  # fmt: skip
         return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.SEED_SOUP_RUN)
 

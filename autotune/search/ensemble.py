@@ -126,6 +126,13 @@ def greedy_step(
     return None
 
 
+PROBE_SEEDS = 4
+"""Seeds a linear configuration within ``[study] seed_soup_reach`` of the best net gets first, ahead of the others'
+(``driver._launch_refine``): by level alone, one configuration's 64 seeds (best 74.45, soups to 75.26) held the
+refinement's worker for 15 minutes while a later one, first seed 74.49, waited; given seeds, it scored 75.22 and
+75.10 and souped to 75.56."""
+
+
 def next_seed_run(
     candidates: Sequence[Entrant],
     launched: Iterable[tuple[int, int]],
@@ -135,10 +142,10 @@ def next_seed_run(
     max_runs: int,
 ) -> RaceRun | None:
     """The next fresh-seed run for a linear configuration's soups, or None: of ``candidates`` (the race's possible
-    entrants, linear ones only), the one with the highest ``level`` (its best net or seed soup; else its entrant
-    score; ties in the candidates' order) within ``reach`` mph of the study's ``best`` net that started fewer than
-    ``max_runs`` race seeds (``launched``: (race_of, seed index) of every race run so far); its next seed is the
-    first index it has not started (the race's seeds, so the race reuses them)."""
+    entrants, linear ones only) within ``reach`` mph of the study's ``best`` net that started fewer than ``max_runs``
+    race seeds (``launched``: (race_of, seed index) of every race run so far), the one with the highest ``level``
+    (its best net or seed soup; else its entrant score; ties in the candidates' order); its next seed is the first
+    index it has not started (the race's seeds, so the race reuses them)."""
     started = set(launched)
     ranked = sorted(enumerate(candidates), key=lambda c: (-level.get(c[1].number, c[1].value), c[0]))
     for _i, e in ranked:

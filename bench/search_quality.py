@@ -543,6 +543,8 @@ class TrialRow:
     """Fresh seed index of a race run (with ``race_of``)."""
     incumbent: bool = False
     """A race run the search started before the race (``incumbent_run``: ``[study] intensify_share``)."""
+    seed_run: bool = False
+    """A race run started before the race for a linear configuration's seed soups (``seed_soup_run``)."""
     refine_of: int | None = None
     """A refinement run (``[study] refine_share``): the trial whose net it trained on from."""
     soup: bool = False
@@ -577,6 +579,7 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 race_of=a.get("race_of"),
                 race_seed=a.get("race_seed"),
                 incumbent=bool(a.get("incumbent_run")),
+                seed_run=bool(a.get("seed_soup_run")),
                 refine_of=(a.get("refine_of") or {}).get("trial"),
                 soup="soup_of" in a,
                 predicted_cost_s=a.get("predicted_cost_s"),
@@ -673,10 +676,15 @@ def lineage_root(row: TrialRow, by_number: Mapping[int, TrialRow]) -> TrialRow:
 def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int], int] = ((), 1)) -> TrialRow | None:
     """The trial whose configuration the arm would pick at ``t_s``: the race winner as ``autotune best`` ranks it
     (``racing.standings`` on the race runs finished by ``t_s``; ``race``: the study's stored field and seeds per
-    round, ``read_race``), else the best trial."""
+    round, ``read_race``) once a race run of the race itself has finished, else the best trial. Race runs started
+    before the race (seed runs, the incumbent's) count once it has, as they do for the study; before, the field
+    the study stored at the race's start did not exist yet."""
     from autotune.search import racing
 
     field, seeds_per_round = race
+    if not any(r.race_of is not None and not (r.seed_run or r.incumbent) and r.end_s is not None and r.end_s <= t_s
+               for r in rows):  # fmt: skip
+        return best_single(rows, t_s)  # the race had not started: its field was stored later (runs before it count)
     results: dict[tuple[int, int], float | None] = {}
     for r in rows:
         if r.race_of is None or r.race_seed is None:

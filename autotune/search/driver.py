@@ -1229,9 +1229,9 @@ class Driver:
                     raise _Refused(f"deadline: the study's time budget ended (before training: its cheapest rung "
                                    f"is predicted to take {cheapest:,.0f} s, {max(cap, 0.0):,.0f} s were left)",
                                    TrialState.PRUNED)  # fmt: skip
+                config = configs[len(predicted.budgets) - 1]
                 if twin and self.spec.ladder:  # one training at its parent's budget: no screening rung prunes it
                     predicted = Plan(predicted.budgets[-1:], predicted.costs[-1:])
-                config = next(c for c in configs if c.train_iterations == predicted.budgets[-1])
                 rungs = predicted.budgets if self.spec.ladder else ()
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study
             cause = str(exc) if isinstance(exc, _Refused) else f"invalid configuration: {exc}"

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from autotune import OFFICIAL_PROTOCOL, TrainConfig
+from autotune.search.refine import PARENT_SPAN
 from autotune.search.soup import SOUP_SPAN
 from sim import fields
 from sim.config import V1_NO_AGENTS, ConfigError, FieldValueError, check, check_other_agents, did_you_mean
@@ -99,9 +100,9 @@ REFINE_RUNS = 32
 """Default ``[study] refine_runs``: measured outside a study, the climbs from gsurma's setting passed their parent
 within 8–32 runs or not at all (``bench/refine.py``); in a crowd-prior study 116 runs of one net found nothing
 above it."""
-SEED_RUN_REACH = 0.5
+SEED_RUN_REACH = PARENT_SPAN
 """Default ``[study] seed_soup_reach`` [mph]: a linear configuration within it of the study's best net takes the
-refinement's worker for its fresh seeds (``refine.PARENT_SPAN``, the refinement's own reach of a parent)."""
+refinement's worker for its fresh seeds (the refinement's own reach of a parent, ``refine.PARENT_SPAN``)."""
 SEED_SOUP_REACH = 1.0
 """[mph] A linear configuration's seed soups are scored while its best net is within this of the study's best (or
 ``seed_soup_reach``, when wider): a soup of seeds scored up to 0.44 above its best one (75.25 → 75.69)."""

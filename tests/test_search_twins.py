@@ -92,6 +92,16 @@ def test_the_parent_is_the_best_first_measure_of_a_configuration() -> None:
     assert number(trials, lambda t: None if t.number == 1 else t.value) == 2
 
 
+def test_the_parents_within_a_span_are_the_best_and_those_near_it_best_first() -> None:
+    score = lambda t: t.value  # noqa: E731
+    trials = [_frozen(0, 72.0), _frozen(1, 74.0), _frozen(2, 73.5), _frozen(3, None), _frozen(4, 73.0),
+              _frozen(5, 75.0, **{keys.TWIN_OF: 1})]  # fmt: skip
+    numbers = lambda span: [t.number for t in twins.parents(trials, score, span)]  # noqa: E731
+    assert twins.parents([], score, 1.0) == [] and numbers(0.0) == [1]
+    assert numbers(0.5) == [1, 2] and numbers(1.0) == [1, 2, 4] and numbers(2.0) == [1, 2, 4, 0]
+    assert numbers(1.0) == numbers(1.0 + 1e-12)  # within: the bound itself is in
+
+
 # -- the spec ---------------------------------------------------------------------------------
 
 
@@ -112,6 +122,15 @@ def test_linear_twins_are_checked_against_the_space() -> None:
     ):  # fmt: skip
         with pytest.raises(SpecError, match=match):
             _spec(linear_twins=bad)
+    assert "linear_twin_span" not in spec.to_dict()["study"]  # 0 (each new best only) is left out, as stored before
+    spread = _spec(linear_twins=RATES, linear_twin_span=1.0)
+    assert spread.study.linear_twin_span == 1.0 and spread.to_dict()["study"]["linear_twin_span"] == 1.0
+    assert parse_spec(spread.to_dict(), source="twins.toml") == spread
+    with pytest.raises(SpecError, match=r"linear_twin_span: sets which configurations get linear twins, but "
+                                        r"linear_twins is empty; set linear_twins"):  # fmt: skip
+        _spec(linear_twin_span=1.0)
+    with pytest.raises(SpecError, match=r"\[study\] linear_twin_span: -1 is out of range"):
+        _spec(linear_twins=RATES, linear_twin_span=-1)
     data = _data(linear_twins=RATES)
     data["space"]["n_layers"] = {"low": 1, "high": 2}
     with pytest.raises(SpecError, match=r"linear_twins: .*n_layers does not reach 0; search n_layers = \{ low = 0"):
@@ -192,6 +211,24 @@ def test_the_driver_enqueues_the_twins_of_each_new_best_configuration_once(tmp_p
     new = [t for t in waiting_now if t.user_attrs[keys.TWIN_OF] == second]
     assert [t.system_attrs["fixed_params"]["patches_ahead"] for t in new] == [4, 4, 4]
     assert len(waiting_now) == 1 + 3 and new[0].user_attrs[keys.LADDER_TOP] == 1
+
+
+def test_with_a_span_the_driver_twins_each_configuration_near_the_best_once(tmp_path: Path) -> None:
+    driver, study, dists = _driver(tmp_path, linear_twin_span=1.0)
+    hidden = space.encode(driver.spec, HIDDEN)
+    best = _add(study, dists, hidden, 74.0, [(1200, 74.0)])
+    near = _add(study, dists, {**hidden, "patches_ahead": 4}, 73.2, [(1200, 73.2)])
+    _add(study, dists, {**hidden, "patches_ahead": 2}, 72.9, [(1200, 72.9)])  # 1.1 below: not twinned
+    driver._enqueue_twins()  # noqa: SLF001
+    waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    assert [t.user_attrs[keys.TWIN_OF] for t in waiting] == [best] * 3 + [near] * 3  # the best's first
+    assert [t.system_attrs["fixed_params"]["patches_ahead"] for t in waiting[3:]] == [4, 4, 4]
+    driver._enqueue_twins()  # noqa: SLF001 - once per parent
+    assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 6
+    late = _add(study, dists, {**hidden, "lanes_side": 2}, 73.5, [(1200, 73.5)])  # near the best later on
+    driver._enqueue_twins()  # noqa: SLF001
+    waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    assert len(waiting) == 9 and {t.user_attrs[keys.TWIN_OF] for t in waiting[6:]} == {late}
 
 
 def test_no_twins_without_the_key_or_in_the_race_window(tmp_path: Path) -> None:

@@ -1355,25 +1355,27 @@ class Driver:
         return None if entry is None else entry[0]
 
     def _enqueue_twins(self) -> None:
-        """Enqueue the linear twins (``[study] linear_twins``) of the study's best configuration, once per parent
-        (``twins.parent``; a resumed study sees the twins it stored), before the sampler's next draw. A twin trains
-        once, at the budget of its parent's best net (``keys.LADDER_TOP``), unpruned: on the ladder its 10k screen
-        (sd ~10 mph) pruned the twins of gsurma's setting at 62–72, where the same twin at 90k scored 73.7–74.4."""
+        """Enqueue the linear twins (``[study] linear_twins``) of the study's best configuration, and of each within
+        ``linear_twin_span`` of it, once per parent (``twins.parents``; a resumed study sees the twins it stored),
+        before the sampler's next draw. A twin trains once, at the budget of its parent's best net
+        (``keys.LADDER_TOP``), unpruned: on the ladder its 10k screen (sd ~10 mph) pruned the twins of gsurma's
+        setting at 62–72, where the same twin at 90k scored 73.7–74.4."""
         assert self.study is not None
-        rates = self.spec.study.linear_twins
-        if not rates or self._out_of_time() or self._race_window():
+        st = self.spec.study
+        if not st.linear_twins or self._out_of_time() or self._race_window():
             return
         trials = self.study.get_trials(deepcopy=False)
-        best = twins.parent(trials, self._twin_score)
-        if best is None or any(t.user_attrs.get(keys.TWIN_OF) == best.number for t in trials):
-            return
-        user: dict[str, Any] = {keys.TWIN_OF: best.number}
-        entry = race_entry(best, self.spec.race_min_budget)
-        budget = None if entry is None else entry[1] if entry[1] is not None else entry[2].get("train_iterations")
-        if self.spec.ladder and budget in self.spec.ladder:  # its twins train as long as its best net did
-            user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
-        for params in twins.twins(best.params, rates):
-            self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
+        done = {t.user_attrs.get(keys.TWIN_OF) for t in trials}
+        for source in twins.parents(trials, self._twin_score, st.linear_twin_span):
+            if source.number in done:
+                continue
+            user: dict[str, Any] = {keys.TWIN_OF: source.number}
+            entry = race_entry(source, self.spec.race_min_budget)
+            budget = None if entry is None else entry[1] if entry[1] is not None else entry[2].get("train_iterations")
+            if self.spec.ladder and budget in self.spec.ladder:  # its twins train as long as its best net did
+                user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
+            for params in twins.twins(source.params, st.linear_twins):
+                self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
 
     def _fail(self, trial: Trial, cause: str, *, retryable: bool) -> None:
         assert self.study is not None

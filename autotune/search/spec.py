@@ -7,7 +7,7 @@ Five tables, every key optional unless said otherwise::
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
-                  seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins
+                  seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins, linear_twin_span
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -292,6 +292,9 @@ class StudySection:
     """Trainer methods and learning rates per input (``learning_rate_x_inputs``) for the linear twins of each new
     best configuration: its parameters with no hidden layer, once per (method, rate), enqueued as ordinary trials
     (``autotune.search.twins``); () none."""
+    linear_twin_span: float = 0.0
+    """With linear_twins: mph below the best configuration (by its best net at min_top or above) within which every
+    configuration gets its twins too, once, best first; 0: only each new best."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -502,6 +505,8 @@ class StudySpec:
         twins = study.pop("linear_twins")
         if twins:  # likewise
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
+        if not study["linear_twin_span"]:  # likewise
+            del study["linear_twin_span"]
         return {
             "study": study,
             "fixed": dict(self.fixed),
@@ -765,12 +770,17 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         raise where.error("balance_every_draw", "conditions the draws on the balanced parameters, but balance is "
                           "empty", 'set balance (e.g. ["method"]), or remove balance_every_draw')  # fmt: skip
     twins = _linear_twins(table.get("linear_twins", {}), where)
+    twin_span = _float(table.get("linear_twin_span", d.linear_twin_span), f"{src}: [study] linear_twin_span", 0.0,
+                       100.0)  # fmt: skip
+    if twin_span and not twins:
+        raise where.error("linear_twin_span", "sets which configurations get linear twins, but linear_twins is empty",
+                          "set linear_twins (e.g. { adagrad = [3.0] }), or remove linear_twin_span")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        greedy, seed_runs, reach, every_draw, twins,
+        greedy, seed_runs, reach, every_draw, twins, twin_span,
     )  # fmt: skip
 
 

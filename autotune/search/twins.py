@@ -27,7 +27,7 @@ from optuna.trial import FrozenTrial
 from autotune.search import keys
 from autotune.search.spec import LR_X_INPUTS
 
-__all__ = ["TWIN_SKIP", "parent", "twins"]
+__all__ = ["TWIN_SKIP", "parent", "parents", "twins"]
 
 TWIN_SKIP = (keys.RETRY_OF, keys.RACE_OF, keys.REFINE_OF, keys.COPIED_FROM, keys.SOUP_OF, keys.TWIN_OF)
 """A trial with one of these user attrs is no parent: a retry, a race, refinement or soup run (their scores are not
@@ -51,13 +51,25 @@ def parent(trials: Sequence[FrozenTrial], score: Callable[[FrozenTrial], float |
     """The trial to twin: the best by ``score`` (None: not a candidate; the driver's is its best net trained at the
     ladder's min_top or above, so a lucky 10k screening draw is no parent) of the study's first measures of
     configurations (``TWIN_SKIP`` left out), the earlier on a tie; None before any."""
-    best: tuple[float, int, FrozenTrial] | None = None
+    ranked = parents(trials, score, 0.0)
+    return ranked[0] if ranked else None
+
+
+def parents(
+    trials: Sequence[FrozenTrial], score: Callable[[FrozenTrial], float | None], span: float
+) -> list[FrozenTrial]:
+    """The trials to twin, best first: of the study's first measures of configurations (``TWIN_SKIP`` left out) with
+    a ``score`` (see ``parent``), the best and those within ``span`` mph of it (``[study] linear_twin_span``), the
+    earlier first on a tie; [] before any."""
+    scored: list[tuple[float, int, FrozenTrial]] = []
     for t in trials:
         if any(k in t.user_attrs for k in TWIN_SKIP) or "n_layers" not in t.params:
             continue
         s = score(t)
-        if s is None or not math.isfinite(s):
-            continue
-        if best is None or (s, -t.number) > best[:2]:
-            best = (s, -t.number, t)
-    return None if best is None else best[2]
+        if s is not None and math.isfinite(s):
+            scored.append((s, -t.number, t))
+    if not scored:
+        return []
+    scored.sort(key=lambda r: r[:2], reverse=True)
+    top = scored[0][0]
+    return [t for s, _, t in scored if s >= top - span]

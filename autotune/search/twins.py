@@ -8,10 +8,12 @@ good linear nets train with another method and rate than the best hidden-layer o
 rarely draws them together: over nine hour-long studies, 108 linear adagrad draws, 5 at 74 or more, all at 1–10.
 The view, the traffic and the replay settings, in contrast, carry over: the best configuration's are a good guess.
 So whenever a configuration with hidden layers (or a linear one with another method or rate) becomes the study's
-best, its twins — the same parameters with ``n_layers = 0`` and each listed (method, rate per input) — are
-enqueued: ordinary trials that climb the ladder, are pruned like any other, and enter the sampler's history (and,
-being linear, the seed soups). Offline, gsurma's crowd setting as a linear adagrad net at 10 per input scored
-74.20, 73.65, 74.42 at 90k (its own setting at 90k: 74.0 on average).
+best — or, with ``[study] linear_twin_span``, comes within that many mph of it — its twins, the same parameters
+with ``n_layers = 0`` and each listed (method, rate per input), are enqueued: ordinary trials, each trained once
+at its parent's budget, unpruned, that enter the sampler's history (and, being linear, the seed soups). Offline,
+gsurma's crowd setting as a linear adagrad net at 10 per input scored 74.20, 73.65, 74.42 at 90k (its own setting
+at 90k: 74.0 on average); jnorthrup-v05's view (6 lanes a side, 52 ahead, none behind) as one, at 1, 3 and 10 per
+input: 65.8–69.1, 59.9–73.2 and 65.3–72.5, so a crowd linear setting is no better a parent than the best.
 
 Pure functions of params and trials; ``autotune.search.driver`` enqueues what they return.
 """

@@ -66,6 +66,29 @@ def test_seed_nets_are_a_linear_configurations_value_and_its_race_runs() -> None
     assert ensemble.seed_nets(trials) == {0: [(0, 74.0), (1, 74.5)], 7: [(7, 72.0)]}
 
 
+def test_with_families_linear_configurations_that_see_and_are_scored_alike_are_one_group() -> None:
+    """A linear twin (same view, traffic, temporal window and ε_test, another trainer) joins its sibling's group,
+    keyed by the first of them; another view, another ε_test or hidden layers do not."""
+    adagrad = LINEAR.replace(method="adagrad", learning_rate=0.01, gamma=0.8, batch_size=4)
+    trials = [
+        (0, _attrs(), 74.0, True),
+        (1, _attrs(**{keys.RACE_OF: 0, keys.RACE_SEED: 0}), 74.5, True),
+        (2, _attrs(TINY), 75.0, True),
+        (3, _attrs(adagrad), 74.2, True),  # a twin of 0: the same inputs and scoring
+        (4, _attrs(adagrad.replace(patches_ahead=LINEAR.patches_ahead + 1)), 73.0, True),  # another view
+        (5, _attrs(adagrad.replace(epsilon_test_time=0.05)), 73.5, True),  # scored with another ε_test
+        (6, _attrs(adagrad, **{keys.RACE_OF: 3, keys.RACE_SEED: 0}), 73.9, True),
+    ]
+    assert ensemble.seed_nets(trials, families=True) == {
+        0: [(0, 74.0), (1, 74.5), (3, 74.2), (6, 73.9)], 4: [(4, 73.0)], 5: [(5, 73.5)]}  # fmt: skip
+    assert ensemble.families_of(trials) == {0: 0, 3: 0, 4: 4, 5: 5}
+    assert ensemble.seed_nets(trials) == {0: [(0, 74.0), (1, 74.5)], 3: [(3, 74.2), (6, 73.9)], 4: [(4, 73.0)],
+                                          5: [(5, 73.5)]}  # fmt: skip
+    assert ensemble.family_key(TINY.to_mapping()) is None and ensemble.family_key(None) is None
+    longer = adagrad.replace(train_iterations=9).to_mapping()
+    assert ensemble.family_key(LINEAR.to_mapping()) == ensemble.family_key(longer)
+
+
 def test_the_next_seed_soup_is_the_best_k_seeds_of_the_best_configuration_near_the_best_net() -> None:
     groups = {0: [(0, 74.0), (1, 74.5), (2, 74.3), (3, 73.0)], 5: [(5, 74.9), (6, 74.8)], 9: [(9, 72.0), (10, 71.9)]}
     assert ensemble.next_seed_soup(groups, {}, (2, 3), 0.5, 75.0, 1.0) == (5, (5, 6))
@@ -137,6 +160,12 @@ def test_seed_soups_and_seed_soup_runs_are_checked() -> None:
         _spec(seed_soup_greedy=True)
     with pytest.raises(SpecError, match=r"\[study\] seed_soup_greedy: must be true or false, got 1"):
         _spec(seed_soups=[2], seed_soup_greedy=1)
+    assert not _spec().study.seed_soup_families and "seed_soup_families" not in _spec().to_dict()["study"]
+    assert _spec(seed_soups=[2], seed_soup_families=True).to_dict()["study"]["seed_soup_families"] is True
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_families: .*seed_soups is empty.*set seed_soups"):
+        _spec(seed_soup_families=True)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_families: must be true or false, got 'yes'"):
+        _spec(seed_soups=[2], seed_soup_families="yes")
 
 
 def test_the_driver_trains_seeds_of_a_linear_configuration_and_soups_them(tmp_path: Path) -> None:
@@ -226,6 +255,41 @@ def test_the_driver_grows_a_greedy_seed_soup_from_the_best_set_so_far(tmp_path: 
     assert made.user_attrs[keys.SOUP_OF] == [0, 1, 2] and made.user_attrs[keys.SEED_SOUP_OF] == 0
     study.tell(driver._running.pop(1).trial, 74.1)  # noqa: SLF001
     assert not driver._launch_seed_soup(0)  # noqa: SLF001 - every net was tried with the best set {0, 1}
+
+
+def test_the_driver_soups_a_family_of_linear_twins_and_seeds_its_members_by_the_family_soup(tmp_path: Path) -> None:
+    """With ``seed_soup_families`` two linear configurations that differ only in their trainer are souped together
+    (``seed_soup_of`` the first); the family soup's score is each member's level for its seeds. Without, neither
+    configuration has two nets: nothing to soup."""
+    for families in (False, True):
+        spec = _spec(n_trials=20, timeout_s=3600, seed_soups=[2], seed_soup_families=families, refine_share=0.5,
+                     seed_soup_runs=2, seed_soup_reach=1.0).with_overrides(
+                         storage=str(tmp_path / f"{families}.log"), workers=2)  # fmt: skip
+        driver, study, storages, dists, params = _driver_on_journal(spec)
+        configs = [LINEAR.replace(train_iterations=1200), LINEAR.replace(train_iterations=1200, method="adagrad",
+                                                                          learning_rate=0.01)]  # fmt: skip
+        for seed, (config, value) in enumerate(zip(configs, (73.8, 74.0), strict=True)):
+            study.add_trial(optuna.trial.create_trial(
+                params=params, distributions=dists, value=value, state=COMPLETE,
+                user_attrs={keys.CONFIG: config.to_mapping(), keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: value}],
+                            keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(seed))},
+            ))  # fmt: skip
+        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        if not families:
+            assert not driver._launch_seed_soup(0)  # noqa: SLF001
+            continue
+        assert driver._launch_seed_soup(0)  # noqa: SLF001
+        made = study.trials[-1]
+        assert made.user_attrs[keys.SOUP_OF] == [0, 1] and made.user_attrs[keys.SEED_SOUP_OF] == 0
+        assert made.user_attrs[keys.CONFIG] == configs[1].to_mapping()  # scored as its best ingredient
+        study.tell(driver._running.pop(0).trial, 75.0)  # noqa: SLF001
+        # the family soup (75.0) is the level of both: 0's own best (73.8) lies 1.2 below it, out of reach alone
+        for expected in (1, 1, 0, 0):
+            assert driver._launch_seed_run(1, 1.0)  # noqa: SLF001
+            assert study.trials[-1].user_attrs[keys.RACE_OF] == expected
+            run = driver._running.pop(1).trial  # noqa: SLF001
+            study.tell(run, 60.0)
+        assert not driver._launch_seed_run(1, 1.0)  # noqa: SLF001 - both had their seed_soup_runs
 
 
 def test_seed_soup_reach_is_checked() -> None:

@@ -896,7 +896,8 @@ class Driver:
         if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
             return False
         trials = self.study.get_trials(deepcopy=False)
-        groups = ensemble.seed_nets((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials)
+        groups = ensemble.seed_nets(((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials),
+                                    families=st.seed_soup_families)  # fmt: skip
         if not any(len(nets) > 1 for nets in groups.values()):
             return False
         tried: dict[int, list[list[int]]] = {}
@@ -943,13 +944,17 @@ class Driver:
             return False
         candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))
         level: dict[int, float] = {}
-        groups = ensemble.seed_nets((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials)
-        for owner, nets in groups.items():
+        rows = [(t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials]
+        for owner, nets in ensemble.seed_nets(rows).items():
             level[owner] = max(s for _, s in nets)
+        members: dict[int, list[int]] = {}  # a family's soup is the level of each of its configurations
+        for owner, family in (ensemble.families_of(rows) if st.seed_soup_families else {}).items():
+            members.setdefault(family, []).append(owner)
         for t in trials:
             of = t.user_attrs.get(keys.SEED_SOUP_OF)
             if of is not None and t.state == TrialState.COMPLETE and t.value is not None:
-                level[int(of)] = max(level.get(int(of), -math.inf), float(t.value))
+                for owner in members.get(int(of), [int(of)]):
+                    level[owner] = max(level.get(owner, -math.inf), float(t.value))
         _results, launched = self._race_results()
         run = ensemble.next_seed_run(
             candidates, launched, level, _best_score(trials), reach, min(runs or st.seed_soup_runs, st.seed_soup_runs)

@@ -7,7 +7,8 @@ Five tables, every key optional unless said otherwise::
                   balance, balance_values, balance_min_share, denoise, denoise_quantile, max_trial_memory_gb,
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
-                  seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins, linear_twin_span
+                  seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
+                  linear_twin_span
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -277,6 +278,9 @@ class StudySection:
     """With seed_soups: once a linear configuration's best-k soups are scored, its greedy soup — the best set so far
     plus one more of its nets within refine_soup_span of its best, kept when it scores higher (``ensemble.
     greedy_step``)."""
+    seed_soup_families: bool = False
+    """With seed_soups: soup the nets of every linear configuration with one view, traffic, temporal window and
+    ε_test together (a configuration's linear twins, trained by other methods), not each configuration's alone."""
     seed_soup_runs: int = 0
     """With seed_soups and refine_share: the most fresh seeds a linear configuration near the study's best gets on
     the refinement's workers before the race, for its soups (0: only the race's)."""
@@ -505,8 +509,9 @@ class StudySpec:
         twins = study.pop("linear_twins")
         if twins:  # likewise
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
-        if not study["linear_twin_span"]:  # likewise
-            del study["linear_twin_span"]
+        for key in ("linear_twin_span", "seed_soup_families"):  # likewise
+            if not study[key]:
+                del study[key]
         return {
             "study": study,
             "fixed": dict(self.fixed),
@@ -744,6 +749,13 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if greedy and not seed_soups:
         raise where.error("seed_soup_greedy", "grows the seed soups, but seed_soups is empty",
                           "set seed_soups (e.g. [2, 3]), or remove seed_soup_greedy")  # fmt: skip
+    families = table.get("seed_soup_families", d.seed_soup_families)
+    if not isinstance(families, bool):
+        raise where.error("seed_soup_families", f"must be true or false, got {families!r}",
+                          "e.g. seed_soup_families = true")  # fmt: skip
+    if families and not seed_soups:
+        raise where.error("seed_soup_families", "soups linear configurations together, but seed_soups is empty",
+                          "set seed_soups (e.g. [2, 3]), or remove seed_soup_families")  # fmt: skip
     seed_runs = _int(table.get("seed_soup_runs", d.seed_soup_runs), f"{src}: [study] seed_soup_runs", 0, 1_000)
     if seed_runs and not seed_soups:
         raise where.error("seed_soup_runs", "trains seeds for the seed soups, but seed_soups is empty",
@@ -780,7 +792,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        greedy, seed_runs, reach, every_draw, twins, twin_span,
+        greedy, families, seed_runs, reach, every_draw, twins, twin_span,
     )  # fmt: skip
 
 

@@ -556,23 +556,16 @@ class TrialRow:
     refused_draws: int | None = None
     rung_scores: tuple[tuple[int, float], ...] = ()
     """(budget, official score) of each rung whose net was kept (ladder trials, pruned ones too)."""
-    entry: tuple[float, dict[str, Any]] | None = None
-    """(score, config) a configuration's own training enters the seed race with (``driver.race_entry`` at the
-    study's ``min_top``): its best net trained that long or longer, and what trained it."""
 
 
-def rows_from_trials(trials: Iterable[Any], t0: float, min_budget: int = 0) -> list[TrialRow]:
-    """TrialRows of Optuna FrozenTrials, times relative to ``t0`` (epoch seconds); ``min_budget``: the study's
-    ``race_min_budget``, the floor of a configuration's race entry."""
-    from autotune.search.driver import race_entry
+def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
+    """TrialRows of Optuna FrozenTrials, times relative to ``t0`` (epoch seconds)."""
     from autotune.search.records import kept_rungs
 
     rows = []
     for t in trials:
         a = t.user_attrs
         end = t.datetime_complete.timestamp() - t0 if t.datetime_complete is not None else None
-        own = not {"race_of", "refine_of", "soup_of", "retry_of", "copied_from"} & a.keys()
-        entry = race_entry(t, min_budget) if own and t.state.name in ("COMPLETE", "PRUNED") else None
         rows.append(
             TrialRow(
                 number=t.number,
@@ -594,7 +587,6 @@ def rows_from_trials(trials: Iterable[Any], t0: float, min_budget: int = 0) -> l
                 retryable=bool(a.get("retryable")),
                 refused_draws=a.get("refused_draws"),
                 rung_scores=tuple(kept_rungs(a)),
-                entry=None if entry is None else (float(entry[0]), dict(entry[2])),
             )
         )
     return rows
@@ -615,24 +607,9 @@ def _stored_study(journal: Path, study_name: str) -> Any:
 
 
 def read_rows(journal: Path, study_name: str, t0: float) -> list[TrialRow]:
-    """The rows of a study in a journal file (empty when the study was never created), race entries at the floor
-    of the study's stored spec."""
+    """The rows of a study in a journal file (empty when the study was never created)."""
     study = _stored_study(journal, study_name)
-    return [] if study is None else rows_from_trials(study.get_trials(deepcopy=False), t0, stored_min_budget(study))
-
-
-def stored_min_budget(study: Any) -> int:
-    """The seed race's floor (``StudySpec.race_min_budget``) of a study's stored spec; 0 when it has none."""
-    from autotune.search import keys
-    from autotune.search.spec import parse_spec
-
-    stored = study.user_attrs.get(keys.STUDY_SPEC)
-    if not isinstance(stored, dict):
-        return 0
-    try:
-        return parse_spec(stored, source=f"study {study.study_name}").race_min_budget
-    except Exception:  # noqa: BLE001 - a spec from an older release: no floor rather than no benchmark
-        return 0
+    return [] if study is None else rows_from_trials(study.get_trials(deepcopy=False), t0)
 
 
 def read_race(journal: Path, study_name: str) -> tuple[list[int], int]:
@@ -652,19 +629,6 @@ def best_single(rows: Iterable[TrialRow], t_s: float, *, enqueued: bool = True) 
     refinement run: its config trains on from its parent's net); ``enqueued=False`` skips warm-start trials."""
     done = [r for r in _complete_by(rows, t_s) if r.refine_of is None and (enqueued or r.warm_start is None)]
     return max(done, key=lambda r: (r.value, -(r.end_s or 0.0)), default=None)
-
-
-def best_entry(rows: Iterable[TrialRow], t_s: float) -> TrialRow | None:
-    """Before the seed race, the configuration it would enter first: of the configurations' own trainings finished
-    by ``t_s`` (pruned too), the best race entry (``TrialRow.entry``: its best net at the study's ``min_top`` or
-    above; ties: the earlier), with the config that trained that net. A trial whose value is a lower rung's
-    (a screening draw, sd ~10 mph at 10k) is picked by its entry, or not at all, as the race would."""
-    done = [r for r in rows if r.entry is not None and r.end_s is not None and r.end_s <= t_s]
-    if not done:
-        return None
-    pick = max(done, key=lambda r: (r.entry[0] if r.entry else -math.inf, -(r.end_s or 0.0)))
-    assert pick.entry is not None
-    return dataclasses.replace(pick, config=pick.entry[1])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -720,8 +684,7 @@ def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int]
     field, seeds_per_round = race
     if not any(r.race_of is not None and not (r.seed_run or r.incumbent) and r.end_s is not None and r.end_s <= t_s
                for r in rows):  # fmt: skip
-        return best_entry(rows, t_s) or best_single(rows, t_s)  # the race had not started: its field was stored
-        # later (runs before it count)
+        return best_single(rows, t_s)  # the race had not started: its field was stored later (runs before it count)
     results: dict[tuple[int, int], float | None] = {}
     for r in rows:
         if r.race_of is None or r.race_seed is None:
@@ -731,7 +694,7 @@ def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int]
         if is_result:
             results[(r.race_of, r.race_seed)] = score
     if not field or not any(v is not None for v in results.values()):
-        return best_entry(rows, t_s) or best_single(rows, t_s)
+        return best_single(rows, t_s)
     root = racing.standings(field, results, seeds_per_round)[0].number
     by_number = {r.number: r for r in rows}
     runs = [r for r in _complete_by(rows, t_s) if r.race_of == root]

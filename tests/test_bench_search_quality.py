@@ -19,7 +19,6 @@ from optuna.storages import JournalStorage
 from optuna.storages.journal import JournalFileBackend
 
 from autotune import TrainConfig
-from autotune.search import keys
 from autotune.search.spec import load_spec, parse_spec
 from tests.conftest import ROOT
 
@@ -167,34 +166,6 @@ def test_best_single_and_the_best_not_enqueued() -> None:
     assert [p["best"] for p in picks] == [75.0, 75.0, 75.0]
     assert [p["best_not_enqueued"] for p in picks] == [None, 72.0, 74.0]
     assert [p["finished"] for p in picks] == [2, 3, 4]
-
-
-def test_before_the_race_the_pick_is_the_best_race_entry_not_a_lucky_screen(tmp_path: Path) -> None:
-    """Before the race the pick is the configuration the race would enter first: the best net trained at the
-    study's min_top or above (a kept rung's budget with its config), not a trial whose value is a 10k screen."""
-    spec = parse_spec({"study": {"name": "pick", "n_trials": 5}, "ladder": {"rungs": [400, 1200], "min_top": 1200},
-                       "fixed": {"otherAgents": 1, "temporal_window": 0, "experience_size": 500}},
-                      source="pick.toml")  # fmt: skip
-    study = optuna.create_study(direction="maximize", storage=f"sqlite:///{tmp_path / 'p.db'}", study_name="pick")
-    study.set_user_attr(keys.STUDY_SPEC, spec.to_dict())
-    config = {"ruleset": "v2", "lanes_side": 1, "patches_ahead": 3, "other_agents": 1, "temporal_window": 0,
-              "experience_size": 500, "start_learn_threshold": 100, "learning_steps_burnin": 120,
-              "learning_steps_total": 600, "layers": "fc:4:relu", "batch_size": 8, "learning_rate": 0.001}  # fmt: skip
-    screen = {"config": {**config, "train_iterations": 400}, "rungs": [{"budget": 400, "score": 76.0}]}
-    kept = {"config": {**config, "train_iterations": 1200},
-            "rungs": [{"budget": 400, "score": 70.0}, {"budget": 1200, "score": 74.5}],
-            "artifact_rung_nets": {"1200": "a"}, "official_protocol": "v2-official"}  # fmt: skip
-    study.add_trial(optuna.trial.create_trial(value=76.0, user_attrs=screen))  # a screen's luck
-    study.add_trial(optuna.trial.create_trial(state=optuna.trial.TrialState.PRUNED, user_attrs=kept))
-    study.add_trial(optuna.trial.create_trial(value=75.0, user_attrs={**kept, "refine_of": {"trial": 1}}))
-    assert sq.stored_min_budget(study) == 1200
-    rows = sq.rows_from_trials(study.get_trials(), time.time() - 1, sq.stored_min_budget(study))
-    assert rows[0].entry is None and rows[1].entry is not None and rows[1].entry[0] == 74.5 and rows[2].entry is None
-    pick = sq.chosen_trial(rows, 3600)
-    assert pick is not None and pick.number == 1 and pick.config["train_iterations"] == 1200
-    assert sq.best_single(rows, 3600).number == 0  # the best value still is the screen
-    assert sq.chosen_trial(sq.rows_from_trials(study.get_trials(), time.time() - 1), 3600).number == 0  # no floor
-    assert sq.best_entry(rows, 0) is None and sq.stored_min_budget(optuna.create_study()) == 0
 
 
 def test_the_best_single_net_counts_kept_rungs() -> None:

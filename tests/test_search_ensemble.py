@@ -292,6 +292,36 @@ def test_the_driver_soups_a_family_of_linear_twins_and_seeds_its_members_by_the_
         assert not driver._launch_seed_run(1, 1.0)  # noqa: SLF001 - both had their seed_soup_runs
 
 
+def test_a_soup_scored_before_an_earlier_twin_joined_its_family_counts_for_the_family(tmp_path: Path) -> None:
+    """A family is keyed by its first configuration; one whose first net comes late (its only net a later seed)
+    takes over the key, and the soups its siblings scored before stay tried: none is scored twice."""
+    spec = _spec(n_trials=20, timeout_s=3600, seed_soups=[2], seed_soup_families=True).with_overrides(
+        storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    sgd = LINEAR.replace(train_iterations=1200).to_mapping()
+    adagrad = LINEAR.replace(train_iterations=1200, method="adagrad", learning_rate=0.01).to_mapping()
+    study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, state=optuna.trial.TrialState.PRUNED,
+                                              user_attrs={keys.CONFIG: sgd}))  # fmt: skip
+    for seed, (value, extra) in enumerate(((74.0, {}), (73.9, {keys.RACE_OF: 1, keys.RACE_SEED: 0}))):
+        study.add_trial(optuna.trial.create_trial(
+            params=params, distributions=dists, value=value, state=COMPLETE,
+            user_attrs={keys.CONFIG: adagrad, keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(seed)),
+                        **extra},
+        ))  # fmt: skip
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert driver._launch_seed_soup(0)  # noqa: SLF001
+    assert study.trials[-1].user_attrs[keys.SEED_SOUP_OF] == 1 and study.trials[-1].user_attrs[keys.SOUP_OF] == [1, 2]
+    study.tell(driver._running.pop(0).trial, 74.3)  # noqa: SLF001
+    study.add_trial(optuna.trial.create_trial(  # trial 0's first net: the family's key is now 0
+        params=params, distributions=dists, value=73.0, state=COMPLETE,
+        user_attrs={keys.CONFIG: sgd, keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(5)),
+                    keys.RACE_OF: 0, keys.RACE_SEED: 0},
+    ))  # fmt: skip
+    assert ensemble.families_of((t.number, t.user_attrs, t.value, t.state == COMPLETE) for t in study.trials) == {
+        0: 0, 1: 0}  # fmt: skip
+    assert not driver._launch_seed_soup(0)  # noqa: SLF001 - {1, 2} had its soup (under 1); 73.0 is out of the span
+
+
 def test_seed_soup_reach_is_checked() -> None:
     assert _spec().study.seed_soup_reach == 0.5
     assert _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=4, seed_soup_reach=2.0).study.seed_soup_reach == 2.0

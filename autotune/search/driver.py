@@ -896,19 +896,21 @@ class Driver:
         if self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
             return False
         trials = self.study.get_trials(deepcopy=False)
-        groups = ensemble.seed_nets(((t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials),
-                                    families=st.seed_soup_families)  # fmt: skip
+        rows = [(t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials]
+        groups = ensemble.seed_nets(rows, families=st.seed_soup_families)
         if not any(len(nets) > 1 for nets in groups.values()):
             return False
+        family = ensemble.families_of(rows) if st.seed_soup_families else {}
         tried: dict[int, list[list[int]]] = {}
         scored: dict[int, list[tuple[list[int], float]]] = {}
         for t in trials:
             owner = t.user_attrs.get(keys.SEED_SOUP_OF)
             if owner is not None and keys.RETRY_OF not in t.user_attrs:
+                owner = family.get(int(owner), int(owner))  # a soup scored before an earlier twin joined its family
                 soup_of = list(t.user_attrs.get(keys.SOUP_OF) or ())
-                tried.setdefault(int(owner), []).append(soup_of)
+                tried.setdefault(owner, []).append(soup_of)
                 if t.state == TrialState.COMPLETE and t.value is not None:
-                    scored.setdefault(int(owner), []).append((soup_of, float(t.value)))
+                    scored.setdefault(owner, []).append((soup_of, float(t.value)))
         pick = ensemble.next_seed_soup(
             groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials),
             max(SEED_SOUP_REACH, st.seed_soup_reach),
@@ -947,13 +949,14 @@ class Driver:
         rows = [(t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials]
         for owner, nets in ensemble.seed_nets(rows).items():
             level[owner] = max(s for _, s in nets)
+        family = ensemble.families_of(rows) if st.seed_soup_families else {}
         members: dict[int, list[int]] = {}  # a family's soup is the level of each of its configurations
-        for owner, family in (ensemble.families_of(rows) if st.seed_soup_families else {}).items():
-            members.setdefault(family, []).append(owner)
+        for owner, head in family.items():
+            members.setdefault(head, []).append(owner)
         for t in trials:
             of = t.user_attrs.get(keys.SEED_SOUP_OF)
             if of is not None and t.state == TrialState.COMPLETE and t.value is not None:
-                for owner in members.get(int(of), [int(of)]):
+                for owner in members.get(family.get(int(of), int(of)), [int(of)]):
                     level[owner] = max(level.get(owner, -math.inf), float(t.value))
         _results, launched = self._race_results()
         run = ensemble.next_seed_run(

@@ -13,6 +13,7 @@ import numpy as np
 import optuna
 import pytest
 
+from autotune.convnet import stack
 from autotune.convnet.forward import forward
 from autotune.convnet.netjson import dumps_net, loads_net
 from autotune.learner.training import train
@@ -362,3 +363,108 @@ def test_a_wider_seed_soup_reach_shares_the_refinement_worker(tmp_path: Path) ->
         # 0.5: the best net's 6 runs, then nothing near enough (back to the search); 2.0: 4 probe seeds, then
         # refinement until it has as many runs, then every other run, then the seeds alone (8 in all)
         assert kinds == ("RRRRRR" if reach == 0.5 else "SSSSRRRRSRSRSS")
+
+
+def test_with_seed_ensembles_configurations_with_hidden_layers_have_seed_nets_of_their_own() -> None:
+    """``hidden`` (``[study] seed_ensembles``): a configuration with hidden layers groups its seeds too — never with
+    a linear family, whose soups are means of weights — and a cap on a stack's members bounds its soups."""
+    trials = [
+        (0, _attrs(), 74.0, True),
+        (1, _attrs(TINY), 75.0, True),
+        (2, _attrs(TINY, **{keys.RACE_OF: 1, keys.RACE_SEED: 0}), 74.6, True),
+        (3, _attrs(LINEAR.replace(method="adagrad")), 73.0, True),
+        (4, {keys.RACE_OF: 1, keys.ARTIFACT_NET_JSON: "id"}, 74.0, True),  # no config: not a seed net
+    ]
+    assert ensemble.seed_nets(trials) == {0: [(0, 74.0)], 3: [(3, 73.0)]}
+    assert ensemble.seed_nets(trials, hidden=True) == {0: [(0, 74.0)], 1: [(1, 75.0), (2, 74.6)], 3: [(3, 73.0)]}
+    groups, family = ensemble.seed_groups(trials, families=True, hidden=True)
+    assert groups == {0: [(0, 74.0), (3, 73.0)], 1: [(1, 75.0), (2, 74.6)]} and family == {0: 0, 1: 1, 3: 0}
+    nets = {1: [(1, 75.0), (2, 74.9), (5, 74.8), (6, 74.7)]}
+    assert ensemble.next_seed_soup(nets, {}, (2, 3), 0.5, 75.0, 1.0, most={1: 2}) == (1, (1, 2))
+    assert ensemble.next_seed_soup(nets, {1: [[1, 2]]}, (2, 3), 0.5, 75.0, 1.0, most={1: 2}) is None
+    scored = {1: [([1, 2], 75.2)]}
+    assert ensemble.next_seed_soup(nets, {1: [[1, 2]]}, (2,), 0.5, 75.0, 1.0, scored, most={1: 3}) == (1, (1, 2, 5))
+    assert ensemble.next_seed_soup(nets, {1: [[1, 2]]}, (2,), 0.5, 75.0, 1.0, scored, most={1: 2}) is None
+    # seeds: a configuration capped by ``most`` stops there, the others go on to max_runs
+    a, b = Entrant(1, 75.0, "a"), Entrant(0, 74.9, "b")
+    assert ensemble.next_seed_run([a, b], [(1, 0), (1, 1)], {}, 75.0, 0.5, 4, {1: 2}) == RaceRun(0, 0)
+    assert ensemble.next_seed_run([a], [(1, 0)], {}, 75.0, 0.5, 4, {1: 2}) == RaceRun(1, 1)
+
+
+def test_seed_ensembles_is_checked() -> None:
+    assert not _spec().study.seed_ensembles and "seed_ensembles" not in _spec().to_dict()["study"]
+    assert _spec(seed_soups=[2], seed_ensembles=True).to_dict()["study"]["seed_ensembles"] is True
+    with pytest.raises(SpecError, match=r"\[study\] seed_ensembles: .*seed_soups is empty.*set seed_soups"):
+        _spec(seed_ensembles=True)
+    with pytest.raises(SpecError, match=r"\[study\] seed_ensembles: must be true or false, got 1"):
+        _spec(seed_soups=[2], seed_ensembles=1)
+
+
+def test_the_driver_seeds_a_configuration_with_hidden_layers_and_stacks_its_seeds(tmp_path: Path) -> None:
+    """With ``seed_ensembles`` the best configuration, with a hidden layer, gets fresh seeds on the refinement's worker
+    (at most ``STACK_SEED_RUNS``) and its seed soups are stacks: the init net is the members side by side, the
+    config records every hidden width × k (so the stack refines as stored), and a stack over ``MAX_STACK_NEURONS``
+    units is never made. Without the key the configuration gets neither."""
+    for on in (False, True):
+        spec = _spec(n_trials=40, timeout_s=3600, refine_share=0.5, refine_runs=3, refine_iterations=3000,
+                     seed_soups=[2, 3], seed_soup_greedy=True, seed_soup_runs=20,
+                     seed_ensembles=on).with_overrides(storage=str(tmp_path / f"{on}.log"), workers=2)  # fmt: skip
+        driver, study, storages, dists, params = _driver_on_journal(spec)
+        hidden = TINY.replace(train_iterations=1200)
+        texts = [dumps_net(train(hidden.replace(train_iterations=0), seed=s, quick_eval=False).convnet())
+                 for s in range(3)]  # fmt: skip
+        study.add_trial(optuna.trial.create_trial(
+            params=params, distributions=dists, value=75.0, state=COMPLETE,
+            user_attrs={keys.CONFIG: hidden.to_mapping(), keys.ARTIFACT_NET_JSON: _upload(storages, study, texts[0]),
+                        keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: 75.0}]},
+        ))  # fmt: skip
+        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        assert driver._launch_refine(0)  # noqa: SLF001
+        first = study.trials[-1]
+        if not on:
+            assert keys.REFINE_OF in first.user_attrs and keys.RACE_OF not in first.user_attrs  # a refinement run
+            continue
+        assert first.user_attrs[keys.RACE_OF] == 0 and first.user_attrs[keys.SEED_SOUP_RUN] is True
+        run = driver._running.pop(0).trial  # noqa: SLF001
+        run.set_user_attr(keys.ARTIFACT_NET_JSON, _upload(storages, study, texts[1]))
+        study.tell(run, 74.8)
+        assert driver._launch_seed_soup(1)  # noqa: SLF001
+        made = study.trials[-1]
+        assert made.user_attrs[keys.SOUP_OF] == [0, run.number] and made.user_attrs[keys.SEED_SOUP_OF] == 0
+        assert made.user_attrs[keys.CONFIG]["layers"] == "fc:8:relu"  # 2 × fc:4:relu
+        stacked = stack.stack_nets([loads_net(texts[0]), loads_net(texts[1])])
+        assert driver.pool.tasks[-1].evaluate_only and driver.pool.tasks[-1].init_net == dumps_net(stacked)
+        soup_run = driver._running.pop(1).trial  # noqa: SLF001
+        soup_run.set_user_attr(keys.ARTIFACT_NET_JSON, _upload(storages, study, dumps_net(stacked)))
+        study.tell(soup_run, 75.2)
+        seeds = 1
+        while driver._launch_refine(0):  # noqa: SLF001 - the rest of its seeds, then refinement of the best net
+            run = driver._running.pop(0).trial  # noqa: SLF001
+            if keys.RACE_OF not in study.trials[run.number].user_attrs:
+                break
+            seeds += 1
+            run.set_user_attr(keys.ARTIFACT_NET_JSON, _upload(storages, study, texts[2]))
+            study.tell(run, 60.0)
+        assert seeds == ensemble.STACK_SEED_RUNS
+        assert study.trials[run.number].user_attrs[keys.REFINE_OF]["trial"] == made.number  # the stack refines
+        assert study.trials[run.number].user_attrs[keys.CONFIG]["layers"] == "fc:8:relu"
+
+
+def test_a_stacked_seed_soup_trial_scores_the_stack_with_its_widened_config() -> None:
+    """The trial the driver makes of a stack (``evaluate_only``, its config every hidden width × k) scores exactly
+    the stack's official score and stores the stack; its config builds the stack's layers."""
+    from autotune.learner.config import TrainConfig
+    from autotune.learner.official import evaluate_official
+    from autotune.search.objective import COMPLETE as DONE
+    from autotune.search.objective import TrialTask, run_trial
+
+    nets = [loads_net(dumps_net(train(TINY.replace(train_iterations=0), seed=s, quick_eval=False).convnet()))
+            for s in range(3)]  # fmt: skip
+    stacked = stack.stack_nets(nets)
+    config = TrainConfig.from_mapping({**TINY.to_mapping(), "layers": "fc:12:relu"})
+    task = TrialTask(number=5, config=config.to_mapping(), seed=1, init_net=dumps_net(stacked), evaluate_only=True,
+                     final_protocol="v2-official")  # fmt: skip
+    out = run_trial(task, lambda step, frames, score: False)
+    assert out.state == DONE and out.net_json == dumps_net(stacked)
+    assert out.value == float(evaluate_official(stacked, config, protocol="v2-official").median_site)
+    assert out.attrs[keys.PARAM_COUNT] == sum(w.size + b.size for w, b in stacked.params)

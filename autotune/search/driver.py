@@ -65,7 +65,9 @@ from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
+from autotune.convnet import stack
 from autotune.convnet.netjson import dumps_net, loads_net
+from autotune.learner.config import parse_layers
 from autotune.search import ensemble, keys, racing, refine, soup, space, twins
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
@@ -897,10 +899,11 @@ class Driver:
             return False
         trials = self.study.get_trials(deepcopy=False)
         rows = [(t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials]
-        groups = ensemble.seed_nets(rows, families=st.seed_soup_families)
+        groups, family = ensemble.seed_groups(rows, st.seed_soup_families, st.seed_ensembles)
         if not any(len(nets) > 1 for nets in groups.values()):
             return False
-        family = ensemble.families_of(rows) if st.seed_soup_families else {}
+        if not st.seed_soup_families:
+            family = {}
         tried: dict[int, list[list[int]]] = {}
         scored: dict[int, list[tuple[list[int], float]]] = {}
         for t in trials:
@@ -911,18 +914,26 @@ class Driver:
                 tried.setdefault(owner, []).append(soup_of)
                 if t.state == TrialState.COMPLETE and t.value is not None:
                     scored.setdefault(owner, []).append((soup_of, float(t.value)))
+        most = {}  # a stack is k times as wide as its members
+        for owner in groups:
+            widest = stack.widest_hidden(parse_layers(trials[owner].user_attrs[keys.CONFIG].get("layers", "")))
+            if widest:
+                most[owner] = max(1, ensemble.MAX_STACK_NEURONS // widest)
         pick = ensemble.next_seed_soup(
             groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials),
             max(SEED_SOUP_REACH, st.seed_soup_reach),
-            scored if st.seed_soup_greedy else None,
+            scored if st.seed_soup_greedy else None, most,
         )  # fmt: skip
         if pick is None:
             return False
         owner, ingredients = pick
         number, score = max(groups[owner], key=lambda r: (r[1], -r[0]))
         best = trials[number]
+        config = TrainConfig.from_mapping(best.user_attrs[keys.CONFIG])
+        if config.layers:  # a stack of k: its config has every hidden width × k, so it refines as it is stored
+            config = dataclasses.replace(config, layers=stack.stacked_hidden(config.layers, len(ingredients)))
         self.study.enqueue_trial(dict(best.params), user_attrs={
-            keys.CONFIG: best.user_attrs[keys.CONFIG], keys.REFINE_OF: refine.Parent(number, None, score).to_attr(),
+            keys.CONFIG: config.to_mapping(), keys.REFINE_OF: refine.Parent(number, None, score).to_attr(),
             keys.SOUP_OF: list(ingredients), keys.SEED_SOUP_OF: owner,
         })  # fmt: skip
         return self._launch_next(slot)
@@ -930,8 +941,10 @@ class Driver:
     def _launch_seed_run(self, slot: int, reach: float, runs: int | None = None) -> bool:
         """Start a fresh seed of a linear configuration within ``reach`` mph of the study's best net on ``slot``, for
         its seed soups (``ensemble.next_seed_run``, up to ``runs`` or ``[study] seed_soup_runs`` seeds, the fewer):
-        a race run before the race, on the race's seeds, so the race counts it. The caller (``_launch_refine``)
-        has checked the refinement's share."""
+        a race run before the race, on the race's seeds, so the race counts it. With ``[study] seed_ensembles`` a
+        configuration with hidden layers too, only within ``SEED_RUN_REACH`` and up to ``ensemble.STACK_SEED_RUNS``
+        seeds (one trains for longer: no probe seeds further below). The caller (``_launch_refine``) has checked the
+        refinement's share."""
         assert self.study is not None
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)
@@ -940,16 +953,18 @@ class Driver:
             if not _original(t) or t.state not in (TrialState.COMPLETE, TrialState.PRUNED):
                 continue
             entry = race_entry(t, self.spec.race_min_budget)
-            if entry is not None and ensemble.is_linear(entry[2]):
-                entries[t.number] = entry
+            if entry is not None and (ensemble.is_linear(entry[2]) or (st.seed_ensembles and reach <= SEED_RUN_REACH)):
+                entries[t.number] = entry  # one with hidden layers: only near the best (no probe seeds)
         if not entries:
             return False
         candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))
         level: dict[int, float] = {}
         rows = [(t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials]
-        for owner, nets in ensemble.seed_nets(rows).items():
+        groups, family = ensemble.seed_groups(rows, hidden=st.seed_ensembles)
+        for owner, nets in groups.items():
             level[owner] = max(s for _, s in nets)
-        family = ensemble.families_of(rows) if st.seed_soup_families else {}
+        if not st.seed_soup_families:
+            family = {}
         members: dict[int, list[int]] = {}  # a family's soup is the level of each of its configurations
         for owner, head in family.items():
             members.setdefault(head, []).append(owner)
@@ -959,16 +974,20 @@ class Driver:
                 for owner in members.get(family.get(int(of), int(of)), [int(of)]):
                     level[owner] = max(level.get(owner, -math.inf), float(t.value))
         _results, launched = self._race_results()
+        hidden = {n: ensemble.STACK_SEED_RUNS for n, e in entries.items() if not ensemble.is_linear(e[2])}
         run = ensemble.next_seed_run(
-            candidates, launched, level, _best_score(trials), reach, min(runs or st.seed_soup_runs, st.seed_soup_runs)
+            candidates, launched, level, _best_score(trials), reach, min(runs or st.seed_soup_runs, st.seed_soup_runs),
+            hidden,
         )  # fmt: skip
         return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.SEED_SOUP_RUN)
 
-    def _soup_net(self, ingredients: list[int]) -> str:
-        """The convnetjs Net JSON of the weight soup of ``ingredients``' stored nets."""
+    def _soup_net(self, ingredients: list[int], stacked: bool = False) -> str:
+        """The convnetjs Net JSON of the weight soup of ``ingredients``' stored nets; ``stacked`` (a seed soup): their
+        ensemble (``stack.stack_nets``: the mean of their weights without hidden layers, else side by side)."""
         texts = [(int(n), self._parent_net(refine.Parent(int(n), None, 0.0))) for n in ingredients]
+        combine = stack.stack_nets if stacked else soup.average_nets
         try:
-            return dumps_net(soup.average_nets([loads_net(text, where=f"trial {n}") for n, text in texts]))
+            return dumps_net(combine([loads_net(text, where=f"trial {n}") for n, text in texts]))
         except ConfigError as exc:
             raise _Refused(f"weight soup: {exc}") from None
 
@@ -1212,7 +1231,7 @@ class Driver:
                 rungs: tuple[int, ...] = (config.train_iterations,) if race and self.spec.ladder else ()
                 ingredients = trial.user_attrs.get(keys.SOUP_OF)
                 if ingredients is not None:
-                    init_net = self._soup_net(ingredients)
+                    init_net = self._soup_net(ingredients, keys.SEED_SOUP_OF in trial.user_attrs)
                 elif refine_of is not None:
                     init_net = self._parent_net(refine.Parent.from_attr(refine_of))
                 cost = self._model().predict(config, screened=False)  # measured with its own ε_test

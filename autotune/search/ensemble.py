@@ -44,8 +44,19 @@ from autotune.search.soup import next_soup
 from sim.config import ConfigError
 
 __all__ = [
-    "SeedSoup", "is_linear", "family_key", "seed_nets", "families_of", "next_seed_soup", "greedy_step", "next_seed_run",
+    "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "is_linear", "family_key", "seed_nets", "seed_groups",
+    "families_of", "next_seed_soup", "greedy_step", "next_seed_run",
 ]  # fmt: skip
+
+STACK_SEED_RUNS = 12
+"""The most fresh seeds a configuration with hidden layers gets before the race (``[study] seed_ensembles``), fewer
+than a linear one's ``seed_soup_runs``: one trains for longer (gsurma's setting at 90k: ~50 s, a linear net ~25 s),
+and its stacks hold only ``MAX_STACK_NEURONS`` // its width nets (10 of gsurma's); the refinement's worker then
+goes back to refining."""
+
+MAX_STACK_NEURONS = 4096
+"""The widest hidden layer a seed soup of a configuration with hidden layers (a stack) may have: the paper space's
+widest (the crowd trained up to 3,000); a stack of k nets is k times as wide as one, and as slow to score."""
 
 SeedSoup = tuple[int, tuple[int, ...]]
 """(configuration's trial number, ingredients: trial numbers ascending) of a seed soup to score."""
@@ -79,35 +90,50 @@ def family_key(config: Mapping[str, Any] | None) -> tuple[Any, ...] | None:
     return (*dataclasses.astuple(c.engine_config), c.temporal_window, c.epsilon_test_time)
 
 
-def seed_nets(trials: Trials, families: bool = False) -> dict[int, list[tuple[int, float]]]:
+def seed_nets(trials: Trials, families: bool = False, hidden: bool = False) -> dict[int, list[tuple[int, float]]]:
     """The fresh-seed nets of each linear configuration among ``trials`` (number, user attrs, value, COMPLETE?): its
     selecting trial's value and its race runs' — COMPLETE, with a stored net — keyed by the selecting trial's
     number, as (trial number, score). Refinement runs and soups, retries and copied history are none of them.
     ``families`` (``[study] seed_soup_families``): the nets of every linear configuration with one ``family_key``
     (a configuration's linear twins, whose trainers differ) in one group, keyed by its first configuration
-    (``families_of``)."""
-    groups, family = _grouped(trials)
-    if not families:
-        return groups
+    (``families_of``). ``hidden`` (``[study] seed_ensembles``): configurations with hidden layers too, each its
+    own group (their soups are stacks, ``autotune.convnet.stack``)."""
+    return seed_groups(trials, families, hidden)[0]
+
+
+Groups = dict[int, list[tuple[int, float]]]
+"""Fresh-seed nets (trial number, score) by configuration (``seed_nets``)."""
+
+
+def _merged(groups: Groups, family: Mapping[int, int]) -> Groups:
     merged: dict[int, list[tuple[int, float]]] = {}
     for owner in sorted(groups):
         merged.setdefault(family[owner], []).extend(groups[owner])
     return merged
 
 
-def families_of(trials: Trials) -> dict[int, int]:
-    """The family of each linear configuration with seed nets (``seed_nets``): the lowest-numbered configuration
-    sharing its ``family_key`` — stable as the study grows, so a family's soups stay recorded under one number."""
-    return _grouped(trials)[1]
+def seed_groups(
+    trials: Trials, families: bool = False, hidden: bool = False
+) -> tuple[dict[int, list[tuple[int, float]]], dict[int, int]]:
+    """``seed_nets(trials, families, hidden)`` and ``families_of(trials, hidden)`` from one pass over the trials."""
+    groups, family = _grouped(trials, hidden)
+    return (_merged(groups, family) if families else groups), family
 
 
-def _grouped(trials: Trials) -> tuple[dict[int, list[tuple[int, float]]], dict[int, int]]:
+def families_of(trials: Trials, hidden: bool = False) -> dict[int, int]:
+    """The family of each configuration with seed nets (``seed_nets``): the lowest-numbered configuration sharing
+    its ``family_key`` — stable as the study grows, so a family's soups stay recorded under one number; a
+    configuration with hidden layers (with ``hidden``) is its own."""
+    return _grouped(trials, hidden)[1]
+
+
+def _grouped(trials: Trials, hidden: bool = False) -> tuple[dict[int, list[tuple[int, float]]], dict[int, int]]:
     groups: dict[int, list[tuple[int, float]]] = {}
     keyed: dict[int, tuple[Any, ...] | None] = {}
     for number, attrs, value, complete in trials:
         if not complete or value is None or not attrs.get(keys.ARTIFACT_NET_JSON):
             continue
-        if not is_linear(attrs.get(keys.CONFIG)):
+        if not isinstance(attrs.get(keys.CONFIG), Mapping) or not (hidden or is_linear(attrs.get(keys.CONFIG))):
             continue
         if any(k in attrs for k in (keys.REFINE_OF, keys.SOUP_OF, keys.RETRY_OF, keys.COPIED_FROM)):
             continue
@@ -130,20 +156,24 @@ def next_seed_soup(
     best: float | None,
     reach: float,
     scored: Mapping[int, Iterable[tuple[Iterable[int], float]]] | None = None,
+    most: Mapping[int, int] | None = None,
 ) -> SeedSoup | None:
     """The next seed soup to score, or None: over the configurations of ``groups`` (``seed_nets``) whose best net is
     within ``reach`` mph of the study's ``best`` net, best first, the first whose best k nets (k in ``sizes``, in
     order; nets within ``span`` mph of its best) form a set none of its soups (``tried``: ingredient sets by
     configuration) had; then, given ``scored`` (its finished soups' ingredients and scores, by configuration), its
-    greedy soup's next step (``greedy_step``)."""
+    greedy soup's next step (``greedy_step``); ``most``: the most ingredients a configuration's soup may have (a
+    stack's width grows with them, ``autotune.convnet.stack``), by configuration, unbounded where absent."""
     order = sorted(groups.items(), key=lambda g: (-max(s for _, s in g[1]), g[0]))
     for owner, nets in order:
         top = max(s for _, s in nets)
         if best is not None and top < best - reach:
             break
-        ingredients = next_soup(nets, sizes, tried.get(owner, ()), top - span)
+        cap = (most or {}).get(owner)
+        fits = [k for k in sizes if cap is None or k <= cap]
+        ingredients = next_soup(nets, fits, tried.get(owner, ()), top - span)
         if ingredients is None and scored is not None:
-            ingredients = greedy_step(nets, tried.get(owner, ()), scored.get(owner, ()), top - span)
+            ingredients = greedy_step(nets, tried.get(owner, ()), scored.get(owner, ()), top - span, cap)
         if ingredients is not None:
             return owner, ingredients
     return None
@@ -154,12 +184,14 @@ def greedy_step(
     tried: Iterable[Iterable[int]],
     scored: Iterable[tuple[Iterable[int], float]],
     floor: float,
+    most: int | None = None,
 ) -> tuple[int, ...] | None:
     """The next step of a greedy soup ("greedy soup", Wortsman et al., 2022) as a hill climb over ingredient sets,
     or None: the best-scoring set so far — a single net (``nets``: number, score) or a finished soup (``scored``;
     ties to the smaller set) — plus the best net scoring ``floor`` or more that is not in it, the first whose union
-    no soup in ``tried`` had. A set that beats the best becomes the one the next steps add to; so every net near
-    the top is tried once against each new best set, and a new seed against the current one."""
+    no soup in ``tried`` had (of at most ``most`` nets, when given). A set that beats the best becomes the one the
+    next steps add to; so every net near the top is tried once against each new best set, and a new seed against
+    the current one."""
     ranked = sorted((r for r in nets if r[1] >= floor), key=lambda r: (-r[1], r[0]))
     if not ranked:
         return None
@@ -168,7 +200,7 @@ def greedy_step(
     seen = {frozenset(t) for t in tried}
     for n, _ in ranked:
         step = current | {n}
-        if n not in current and step not in seen:
+        if n not in current and step not in seen and (most is None or len(step) <= most):
             return tuple(sorted(step))
     return None
 
@@ -187,17 +219,19 @@ def next_seed_run(
     best: float | None,
     reach: float,
     max_runs: int,
+    most: Mapping[int, int] | None = None,
 ) -> RaceRun | None:
     """The next fresh-seed run for a linear configuration's soups, or None: of ``candidates`` (the race's possible
     entrants, linear ones only) within ``reach`` mph of the study's ``best`` net that started fewer than ``max_runs``
     race seeds (``launched``: (race_of, seed index) of every race run so far), the one with the highest ``level``
     (its best net or seed soup; else its entrant score; ties in the candidates' order); its next seed is the first
-    index it has not started (the race's seeds, so the race reuses them)."""
+    index it has not started (the race's seeds, so the race reuses them). ``most``: a lower cap than ``max_runs`` for
+    some configurations (by number; those with hidden layers, ``STACK_SEED_RUNS``)."""
     started = set(launched)
     ranked = sorted(enumerate(candidates), key=lambda c: (-level.get(c[1].number, c[1].value), c[0]))
     for _i, e in ranked:
         mine = {s for (n, s) in started if n == e.number}
-        if len(mine) >= max_runs:
+        if len(mine) >= min(max_runs, (most or {}).get(e.number, max_runs)):
             continue
         if best is not None and level.get(e.number, e.value) < best - reach:
             continue

@@ -614,7 +614,7 @@ def retrain_trial(storages: Storages, study_name: str, number: int) -> Reproduct
     parent = trial.user_attrs.get(keys.REFINE_OF)  # a refinement run trains on from its parent's stored net
     ingredients = trial.user_attrs.get(keys.SOUP_OF)  # a weight soup averages its ingredients' stored nets again
     if ingredients is not None:
-        init_net: str | None = soup_net(storages, study, ingredients)
+        init_net: str | None = soup_net(storages, study, ingredients, keys.SEED_SOUP_OF in trial.user_attrs)
     else:
         init_net = None if parent is None else parent_net(storages, study, parent)
     task = TrialTask(
@@ -649,14 +649,17 @@ def parent_net(storages: Storages, study: StudyRecord, refine_of: Mapping[str, A
     return net_text(storages, number, _numbered(study, number).user_attrs, None if budget is None else int(budget))
 
 
-def soup_net(storages: Storages, study: StudyRecord, ingredients: Sequence[int]) -> str:
-    """The Net JSON of a weight soup (``soup_of``): the mean weights of its ingredients' stored nets."""
+def soup_net(storages: Storages, study: StudyRecord, ingredients: Sequence[int], stacked: bool = False) -> str:
+    """The Net JSON of a weight soup (``soup_of``): the mean weights of its ingredients' stored nets; ``stacked`` (a
+    seed soup, ``seed_soup_of``): their ensemble (``stack.stack_nets``, the same mean for nets without hidden layers,
+    side by side with them)."""
     from autotune.convnet.netjson import dumps_net, loads_net
+    from autotune.convnet.stack import stack_nets
     from autotune.search.soup import average_nets
 
     nets = [loads_net(parent_net(storages, study, {"trial": int(n), "budget": None}), where=f"trial {n} net.json")
             for n in ingredients]  # fmt: skip
-    return dumps_net(average_nets(nets))
+    return dumps_net(stack_nets(nets) if stacked else average_nets(nets))
 
 
 def _spec_table(study: StudyRecord, table: str) -> dict[str, Any]:

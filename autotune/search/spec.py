@@ -8,7 +8,7 @@ Five tables, every key optional unless said otherwise::
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
-                  linear_twin_span
+                  linear_twin_span, seed_ensembles
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -299,6 +299,9 @@ class StudySection:
     linear_twin_span: float = 0.0
     """With linear_twins: mph below the best configuration (by its best net at min_top or above) within which every
     configuration gets its twins too, once, best first; 0: only each new best."""
+    seed_ensembles: bool = False
+    """With seed_soups: configurations with hidden layers get seeds and seed soups too, each soup their nets side by
+    side in one wider net whose Q-values are the mean of theirs (``autotune.convnet.stack``); false: linear only."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -509,7 +512,7 @@ class StudySpec:
         twins = study.pop("linear_twins")
         if twins:  # likewise
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
-        for key in ("linear_twin_span", "seed_soup_families"):  # likewise
+        for key in ("linear_twin_span", "seed_soup_families", "seed_ensembles"):  # likewise
             if not study[key]:
                 del study[key]
         return {
@@ -787,12 +790,18 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if twin_span and not twins:
         raise where.error("linear_twin_span", "sets which configurations get linear twins, but linear_twins is empty",
                           "set linear_twins (e.g. { adagrad = [3.0] }), or remove linear_twin_span")  # fmt: skip
+    stacks = table.get("seed_ensembles", d.seed_ensembles)
+    if not isinstance(stacks, bool):
+        raise where.error("seed_ensembles", f"must be true or false, got {stacks!r}", "e.g. seed_ensembles = true")
+    if stacks and not seed_soups:
+        raise where.error("seed_ensembles", "stacks the seeds of configurations with hidden layers, but seed_soups is "
+                          "empty", "set seed_soups (e.g. [2, 3, 4]), or remove seed_ensembles")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        greedy, families, seed_runs, reach, every_draw, twins, twin_span,
+        greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks,
     )  # fmt: skip
 
 

@@ -468,3 +468,28 @@ def test_a_stacked_seed_soup_trial_scores_the_stack_with_its_widened_config() ->
     assert out.state == DONE and out.net_json == dumps_net(stacked)
     assert out.value == float(evaluate_official(stacked, config, protocol="v2-official").median_site)
     assert out.attrs[keys.PARAM_COUNT] == sum(w.size + b.size for w, b in stacked.params)
+
+
+def test_a_configuration_with_hidden_layers_gets_seeds_only_near_the_best(tmp_path: Path) -> None:
+    """With ``seed_ensembles`` and a wide ``seed_soup_reach``, a configuration with hidden layers 1 mph below the best
+    net gets no probe seed (a seed of one trains for longer); the best one gets its ``STACK_SEED_RUNS`` seeds."""
+    spec = _spec(n_trials=40, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=20,
+                 seed_soup_reach=2.0, seed_ensembles=True).with_overrides(
+                     storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    hidden = TINY.replace(train_iterations=1200)
+    text = dumps_net(train(hidden.replace(train_iterations=0), seed=0, quick_eval=False).convnet())
+    for value, layers in ((75.0, "fc:4:relu"), (74.0, "fc:3:relu")):
+        study.add_trial(optuna.trial.create_trial(
+            params=params, distributions=dists, value=value, state=COMPLETE,
+            user_attrs={keys.CONFIG: hidden.replace(layers=layers).to_mapping(),
+                        keys.ARTIFACT_NET_JSON: _upload(storages, study, text)},
+        ))  # fmt: skip
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert not driver._launch_seed_run(1, 2.0, ensemble.PROBE_SEEDS)  # noqa: SLF001
+    owners = []
+    while driver._launch_seed_run(1, 0.5):  # noqa: SLF001
+        run = driver._running.pop(1).trial  # noqa: SLF001
+        owners.append(study.trials[run.number].user_attrs[keys.RACE_OF])
+        study.tell(run, 60.0)
+    assert owners == [0] * ensemble.STACK_SEED_RUNS

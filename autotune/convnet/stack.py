@@ -23,24 +23,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from autotune.convnet.spec import (
-    FC,
-    ConvNet,
-    Dropout,
-    Input,
-    Layer,
-    Maxout,
-    NetSpecError,
-    Regression,
-    Relu,
-    Sigmoid,
-    Tanh,
-    same_structure,
-)  # fmt: skip
+from autotune.convnet import spec
+from autotune.convnet.spec import FC, ConvNet, Layer, NetSpecError
 
 __all__ = ["stack_nets", "stacked_hidden", "widest_hidden"]
 
-_PER_UNIT = (Relu, Tanh, Sigmoid, Dropout)
+_PER_UNIT = (spec.Relu, spec.Tanh, spec.Sigmoid, spec.Dropout)
 
 
 def stack_nets(nets: Sequence[ConvNet]) -> ConvNet:
@@ -50,7 +38,7 @@ def stack_nets(nets: Sequence[ConvNet]) -> ConvNet:
         raise NetSpecError("a stacked ensemble needs at least one net")
     first = nets[0]
     for j, net in enumerate(nets[1:], 1):
-        if not same_structure(net.layers, first.layers):
+        if not spec.same_structure(net.layers, first.layers):
             raise NetSpecError(f"ensemble member {j}: its layers differ from member 0's; a stack joins one structure")
     k = len(nets)
     n_fc = sum(isinstance(layer, FC) for layer in first.layers)
@@ -63,11 +51,11 @@ def stack_nets(nets: Sequence[ConvNet]) -> ConvNet:
             width = layer.num_neurons
             if fc_seen < n_fc:
                 layer = dataclasses.replace(layer, num_neurons=width * k)
-        elif isinstance(layer, Maxout):
+        elif isinstance(layer, spec.Maxout):
             if width % layer.group_size:
                 raise NetSpecError(f"layers[{i}]: maxout groups of {layer.group_size} over {width} units would "
                                    "span two members of a stack; only multiples of the group size stack")  # fmt: skip
-        elif not isinstance(layer, (Input, Regression, *_PER_UNIT)):
+        elif not isinstance(layer, (spec.Input, spec.Regression, *_PER_UNIT)):
             raise NetSpecError(f"layers[{i}]: a {type(layer).__name__} layer mixes units across members; only fc "
                                "layers with relu, tanh, sigmoid, maxout or dropout stack")  # fmt: skip
         layers.append(layer)

@@ -82,7 +82,7 @@ def test_with_families_linear_configurations_that_see_and_are_scored_alike_are_o
     ]
     assert ensemble.seed_nets(trials, families=True) == {
         0: [(0, 74.0), (1, 74.5), (3, 74.2), (6, 73.9)], 4: [(4, 73.0)], 5: [(5, 73.5)]}  # fmt: skip
-    assert ensemble.families_of(trials) == {0: 0, 3: 0, 4: 4, 5: 5}
+    assert ensemble.seed_groups(trials)[1] == {0: 0, 3: 0, 4: 4, 5: 5}
     assert ensemble.seed_nets(trials) == {0: [(0, 74.0), (1, 74.5)], 3: [(3, 74.2), (6, 73.9)], 4: [(4, 73.0)],
                                           5: [(5, 73.5)]}  # fmt: skip
     assert ensemble.family_key(TINY.to_mapping()) is None and ensemble.family_key(None) is None
@@ -318,7 +318,7 @@ def test_a_soup_scored_before_an_earlier_twin_joined_its_family_counts_for_the_f
         user_attrs={keys.CONFIG: sgd, keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(5)),
                     keys.RACE_OF: 0, keys.RACE_SEED: 0},
     ))  # fmt: skip
-    assert ensemble.families_of((t.number, t.user_attrs, t.value, t.state == COMPLETE) for t in study.trials) == {
+    assert ensemble.seed_groups((t.number, t.user_attrs, t.value, t.state == COMPLETE) for t in study.trials)[1] == {
         0: 0, 1: 0}  # fmt: skip
     assert not driver._launch_seed_soup(0)  # noqa: SLF001 - {1, 2} had its soup (under 1); 73.0 is out of the span
 

@@ -931,7 +931,7 @@ class Driver:
         best = trials[number]
         config = TrainConfig.from_mapping(best.user_attrs[keys.CONFIG])
         if config.layers:  # a stack of k: its config has every hidden width × k, so it refines as it is stored
-            config = dataclasses.replace(config, layers=stack.stacked_hidden(config.layers, len(ingredients)))
+            config = config.replace(layers=stack.stacked_hidden(config.layers, len(ingredients)))
         self.study.enqueue_trial(dict(best.params), user_attrs={
             keys.CONFIG: config.to_mapping(), keys.REFINE_OF: refine.Parent(number, None, score).to_attr(),
             keys.SOUP_OF: list(ingredients), keys.SEED_SOUP_OF: owner,

@@ -45,7 +45,7 @@ from sim.config import ConfigError
 
 __all__ = [
     "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "is_linear", "family_key", "seed_nets", "seed_groups",
-    "families_of", "next_seed_soup", "greedy_step", "next_seed_run",
+    "next_seed_soup", "greedy_step", "next_seed_run",
 ]  # fmt: skip
 
 STACK_SEED_RUNS = 12
@@ -90,45 +90,38 @@ def family_key(config: Mapping[str, Any] | None) -> tuple[Any, ...] | None:
     return (*dataclasses.astuple(c.engine_config), c.temporal_window, c.epsilon_test_time)
 
 
-def seed_nets(trials: Trials, families: bool = False, hidden: bool = False) -> dict[int, list[tuple[int, float]]]:
+Groups = dict[int, list[tuple[int, float]]]
+"""Fresh-seed nets (trial number, score) by configuration (``seed_nets``)."""
+
+
+def seed_nets(trials: Trials, families: bool = False, hidden: bool = False) -> Groups:
     """The fresh-seed nets of each linear configuration among ``trials`` (number, user attrs, value, COMPLETE?): its
     selecting trial's value and its race runs' — COMPLETE, with a stored net — keyed by the selecting trial's
     number, as (trial number, score). Refinement runs and soups, retries and copied history are none of them.
     ``families`` (``[study] seed_soup_families``): the nets of every linear configuration with one ``family_key``
     (a configuration's linear twins, whose trainers differ) in one group, keyed by its first configuration
-    (``families_of``). ``hidden`` (``[study] seed_ensembles``): configurations with hidden layers too, each its
+    (``seed_groups``). ``hidden`` (``[study] seed_ensembles``): configurations with hidden layers too, each its
     own group (their soups are stacks, ``autotune.convnet.stack``)."""
     return seed_groups(trials, families, hidden)[0]
 
 
-Groups = dict[int, list[tuple[int, float]]]
-"""Fresh-seed nets (trial number, score) by configuration (``seed_nets``)."""
-
-
 def _merged(groups: Groups, family: Mapping[int, int]) -> Groups:
-    merged: dict[int, list[tuple[int, float]]] = {}
+    merged: Groups = {}
     for owner in sorted(groups):
         merged.setdefault(family[owner], []).extend(groups[owner])
     return merged
 
 
-def seed_groups(
-    trials: Trials, families: bool = False, hidden: bool = False
-) -> tuple[dict[int, list[tuple[int, float]]], dict[int, int]]:
-    """``seed_nets(trials, families, hidden)`` and ``families_of(trials, hidden)`` from one pass over the trials."""
+def seed_groups(trials: Trials, families: bool = False, hidden: bool = False) -> tuple[Groups, dict[int, int]]:
+    """``seed_nets(trials, families, hidden)`` and the family of each configuration with seed nets: the
+    lowest-numbered configuration sharing its ``family_key`` — stable as the study grows, so a family's soups stay
+    recorded under one number; one with hidden layers (with ``hidden``) is its own."""
     groups, family = _grouped(trials, hidden)
     return (_merged(groups, family) if families else groups), family
 
 
-def families_of(trials: Trials, hidden: bool = False) -> dict[int, int]:
-    """The family of each configuration with seed nets (``seed_nets``): the lowest-numbered configuration sharing
-    its ``family_key`` — stable as the study grows, so a family's soups stay recorded under one number; a
-    configuration with hidden layers (with ``hidden``) is its own."""
-    return _grouped(trials, hidden)[1]
-
-
-def _grouped(trials: Trials, hidden: bool = False) -> tuple[dict[int, list[tuple[int, float]]], dict[int, int]]:
-    groups: dict[int, list[tuple[int, float]]] = {}
+def _grouped(trials: Trials, hidden: bool = False) -> tuple[Groups, dict[int, int]]:
+    groups: Groups = {}
     keyed: dict[int, tuple[Any, ...] | None] = {}
     for number, attrs, value, complete in trials:
         if not complete or value is None or not attrs.get(keys.ARTIFACT_NET_JSON):
@@ -221,8 +214,8 @@ def next_seed_run(
     max_runs: int,
     most: Mapping[int, int] | None = None,
 ) -> RaceRun | None:
-    """The next fresh-seed run for a linear configuration's soups, or None: of ``candidates`` (the race's possible
-    entrants, linear ones only) within ``reach`` mph of the study's ``best`` net that started fewer than ``max_runs``
+    """The next fresh-seed run for a configuration's seed soups, or None: of ``candidates`` (the race's possible
+    entrants that may have seeds) within ``reach`` mph of the study's ``best`` net that started fewer than ``max_runs``
     race seeds (``launched``: (race_of, seed index) of every race run so far), the one with the highest ``level``
     (its best net or seed soup; else its entrant score; ties in the candidates' order); its next seed is the first
     index it has not started (the race's seeds, so the race reuses them). ``most``: a lower cap than ``max_runs`` for

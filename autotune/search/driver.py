@@ -922,7 +922,7 @@ class Driver:
         pick = ensemble.next_seed_soup(
             groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials),
             max(SEED_SOUP_REACH, st.seed_soup_reach),
-            scored if st.seed_soup_greedy else None, most,
+            scored if st.seed_soup_greedy else None, most, st.seed_soup_swap_span,
         )  # fmt: skip
         if pick is None:
             return False

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -51,12 +52,14 @@ __all__ = [
 STACK_SEED_RUNS = 12
 """The most fresh seeds a configuration with hidden layers gets before the race (``[study] seed_ensembles``), fewer
 than a linear one's ``seed_soup_runs``: one trains for longer (gsurma's setting at 90k: ~50 s, a linear net ~25 s),
-and its stacks hold only ``MAX_STACK_NEURONS`` // its width nets (10 of gsurma's); the refinement's worker then
+and its stacks hold only ``MAX_STACK_NEURONS`` // its width nets (21 of gsurma's); the refinement's worker then
 goes back to refining."""
 
-MAX_STACK_NEURONS = 4096
-"""The widest hidden layer a seed soup of a configuration with hidden layers (a stack) may have: the paper space's
-widest (the crowd trained up to 3,000); a stack of k nets is k times as wide as one, and as slow to score."""
+MAX_STACK_NEURONS = 8192
+"""The widest hidden layer a seed soup of a configuration with hidden layers (a stack) may have: a stack of k nets
+is k times as wide as one, and as slow to score (~6 s per 593 units). At 4,096 a crowd-prior hour's race winner
+(``fc:593:tanh``, 24 seeds, 74.01–75.34) stacked at most 6 and its greedy stacks stopped at 75.46; its best 8
+(4,744 units, 51 s to score) scored 75.58, its best 10 75.46."""
 
 SeedSoup = tuple[int, tuple[int, ...]]
 """(configuration's trial number, ingredients: trial numbers ascending) of a seed soup to score."""
@@ -150,13 +153,16 @@ def next_seed_soup(
     reach: float,
     scored: Mapping[int, Iterable[tuple[Iterable[int], float]]] | None = None,
     most: Mapping[int, int] | None = None,
+    swap_span: float = 0.0,
 ) -> SeedSoup | None:
     """The next seed soup to score, or None: over the configurations of ``groups`` (``seed_nets``) whose best net is
     within ``reach`` mph of the study's ``best`` net, best first, the first whose best k nets (k in ``sizes``, in
     order; nets within ``span`` mph of its best) form a set none of its soups (``tried``: ingredient sets by
     configuration) had; then, given ``scored`` (its finished soups' ingredients and scores, by configuration), its
     greedy soup's next step (``greedy_step``); ``most``: the most ingredients a configuration's soup may have (a
-    stack's width grows with them, ``autotune.convnet.stack``), by configuration, unbounded where absent."""
+    stack's width grows with them, ``autotune.convnet.stack``), by configuration, unbounded where absent;
+    ``swap_span`` > 0: the greedy soups of the unbounded ones (nets without hidden layers, whose soups score in
+    seconds; a stack's take tens) go on by swaps over their nets within ``swap_span`` of their best."""
     order = sorted(groups.items(), key=lambda g: (-max(s for _, s in g[1]), g[0]))
     for owner, nets in order:
         top = max(s for _, s in nets)
@@ -166,7 +172,8 @@ def next_seed_soup(
         fits = [k for k in sizes if cap is None or k <= cap]
         ingredients = next_soup(nets, fits, tried.get(owner, ()), top - span)
         if ingredients is None and scored is not None:
-            ingredients = greedy_step(nets, tried.get(owner, ()), scored.get(owner, ()), top - span, cap)
+            swap_floor = top - swap_span if swap_span > 0 and cap is None else None
+            ingredients = greedy_step(nets, tried.get(owner, ()), scored.get(owner, ()), top - span, cap, swap_floor)
         if ingredients is not None:
             return owner, ingredients
     return None
@@ -178,22 +185,45 @@ def greedy_step(
     scored: Iterable[tuple[Iterable[int], float]],
     floor: float,
     most: int | None = None,
+    swap_floor: float | None = None,
 ) -> tuple[int, ...] | None:
     """The next step of a greedy soup ("greedy soup", Wortsman et al., 2022) as a hill climb over ingredient sets,
     or None: the best-scoring set so far — a single net (``nets``: number, score) or a finished soup (``scored``;
     ties to the smaller set) — plus the best net scoring ``floor`` or more that is not in it, the first whose union
     no soup in ``tried`` had (of at most ``most`` nets, when given). A set that beats the best becomes the one the
     next steps add to; so every net near the top is tried once against each new best set, and a new seed against
-    the current one."""
-    ranked = sorted((r for r in nets if r[1] >= floor), key=lambda r: (-r[1], r[0]))
+    the current one.
+
+    ``swap_floor`` (``[study] seed_soup_swap_span``): once no such addition is left, the climb goes on over the
+    rest of the best set's neighbours, nets scoring ``swap_floor`` or more: one added, one member left out (a set
+    keeps two), one member replaced by another — best net first, weakest member first. An addition can lower a
+    soup that a swap then lifts: on a crowd-prior hour's 58 seeds of one linear configuration the additions had
+    stopped at 75.72 (5 seeds); 202 neighbours on (~1.5 s each) a swap gave 75.74 and an addition 75.80."""
+    lowest = floor if swap_floor is None else min(floor, swap_floor)
+    ranked = sorted((r for r in nets if r[1] >= lowest), key=lambda r: (-r[1], r[0]))
     if not ranked:
         return None
     sets = [(frozenset([n]), s) for n, s in ranked] + [(frozenset(i), float(s)) for i, s in scored]
     current = min(sets, key=lambda c: (-c[1], len(c[0]), sorted(c[0])))[0]
     seen = {frozenset(t) for t in tried}
-    for n, _ in ranked:
-        step = current | {n}
-        if n not in current and step not in seen and (most is None or len(step) <= most):
+
+    def fits(step: frozenset[int]) -> bool:
+        return step not in seen and (most is None or len(step) <= most)
+
+    near = [n for n, s in ranked if s >= floor]
+    for n in near:
+        if n not in current and fits(current | {n}):
+            return tuple(sorted(current | {n}))
+    if swap_floor is None:
+        return None
+    value = {n: s for n, s in ranked}
+    wide = [n for n, _ in ranked if n not in current]
+    members = sorted(current, key=lambda m: (value.get(m, math.inf), m))  # weakest first
+    steps = [current | {n} for n in wide]
+    steps += [current - {m} for m in members if len(current) > 2]
+    steps += [(current - {m}) | {n} for m in members for n in wide]
+    for step in steps:
+        if len(step) > 1 and fits(step):
             return tuple(sorted(step))
     return None
 

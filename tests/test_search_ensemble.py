@@ -229,6 +229,52 @@ def test_the_driver_trains_seeds_of_a_linear_configuration_and_soups_them(tmp_pa
     assert nxt.user_attrs[keys.SEED] == refine.refine_seed(spec.study.seed, 0)
 
 
+def test_with_a_swap_floor_the_greedy_soup_goes_on_by_swaps_once_no_addition_is_left() -> None:
+    nets = [(1, 75.3), (2, 75.2), (3, 75.0), (4, 74.9), (5, 74.0)]
+    tried = [[1, 2], [1, 3], [1, 2, 3], [1, 3, 4]]
+    scored = [([1, 2], 75.1), ([1, 3], 75.5), ([1, 2, 3], 75.4), ([1, 3, 4], 75.45)]
+    assert ensemble.greedy_step(nets, tried, scored, 74.5) is None  # additions within the floor: all tried
+    # the swap floor's nets are added first (net 5), then members swapped, the weakest (3) first, best net first
+    assert ensemble.greedy_step(nets, tried, scored, 74.5, swap_floor=73.5) == (1, 3, 5)
+    tried.append([1, 3, 5])
+    assert ensemble.greedy_step(nets, tried, scored, 74.5, swap_floor=73.5) == (1, 4)  # 3 → 2 is {1, 2}: tried
+    tried.append([1, 4])
+    assert ensemble.greedy_step(nets, tried, scored, 74.5, swap_floor=73.5) == (1, 5)
+    assert ensemble.greedy_step(nets, tried, scored, 74.5, swap_floor=74.5) == (2, 3)  # 1 → 2; net 5 below
+    # a swap that scores higher is the set the next steps start from: additions to it first
+    scored.append(([1, 4], 75.6))
+    assert ensemble.greedy_step(nets, tried, scored, 74.5, swap_floor=73.5) == (1, 2, 4)
+    # a set of three: a member left out (the weakest first) before any swap; never below two nets
+    tried += [[1, 2, 4], [1, 3, 4, 5]]
+    scored += [([1, 2, 4], 75.7)]
+    steps = []
+    for _ in range(4):
+        step = ensemble.greedy_step(nets, tried, scored, 74.5, swap_floor=73.5)
+        assert step is not None
+        steps.append(step)
+        tried.append(list(step))
+    assert steps == [(1, 2, 3, 4), (1, 2, 4, 5), (2, 4), (1, 2, 5)]  # {1, 2}, {1, 4} tried; 4 → 3 tried, 4 → 5
+    # at most 3 nets: no additions; the next swap is the next member's (2 → 3 tried, 2 → 5)
+    assert ensemble.greedy_step(nets, tried, scored, 74.5, most=3, swap_floor=73.5) == (1, 4, 5)
+    # next_seed_soup swaps only unbounded configurations (a stack's neighbours take tens of seconds each)
+    groups = {1: nets}
+    full = [[1, 2], [1, 3], [1, 2, 3], [1, 3, 4]]
+    done = [([1, 2], 75.1), ([1, 3], 75.5), ([1, 2, 3], 75.4), ([1, 3, 4], 75.45)]
+    assert ensemble.next_seed_soup(groups, {1: full}, (2,), 0.5, 75.3, 1.0, {1: done}) is None
+    assert ensemble.next_seed_soup(groups, {1: full}, (2,), 0.5, 75.3, 1.0, {1: done}, swap_span=1.5) == (1, (1, 3, 5))
+    assert ensemble.next_seed_soup(groups, {1: full}, (2,), 0.5, 75.3, 1.0, {1: done}, {1: 4}, swap_span=1.5) is None
+
+
+def test_seed_soup_swap_span_is_checked() -> None:
+    assert _spec().study.seed_soup_swap_span == 0.0 and "seed_soup_swap_span" not in _spec().to_dict()["study"]
+    on = _spec(seed_soups=[2], seed_soup_greedy=True, seed_soup_swap_span=1.25)
+    assert on.study.seed_soup_swap_span == 1.25 and on.to_dict()["study"]["seed_soup_swap_span"] == 1.25
+    with pytest.raises(SpecError, match=r"seed_soup_swap_span: .*seed_soup_greedy is off.*seed_soup_greedy = "):
+        _spec(seed_soups=[2], seed_soup_swap_span=1.0)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_swap_span: -1.0 is out of range"):
+        _spec(seed_soups=[2], seed_soup_greedy=True, seed_soup_swap_span=-1.0)
+
+
 def test_the_driver_grows_a_greedy_seed_soup_from_the_best_set_so_far(tmp_path: Path) -> None:
     """With ``seed_soup_greedy`` the driver scores, after the best-k soups, the best set so far plus the next net:
     while the soup of the best 2 is scored, a free worker tries the best net with the third; the best 2 beat the best
@@ -256,6 +302,29 @@ def test_the_driver_grows_a_greedy_seed_soup_from_the_best_set_so_far(tmp_path: 
     assert made.user_attrs[keys.SOUP_OF] == [0, 1, 2] and made.user_attrs[keys.SEED_SOUP_OF] == 0
     study.tell(driver._running.pop(1).trial, 74.1)  # noqa: SLF001
     assert not driver._launch_seed_soup(0)  # noqa: SLF001 - every net was tried with the best set {0, 1}
+
+
+def test_with_seed_soup_swap_span_the_driver_swaps_the_best_sets_members(tmp_path: Path) -> None:
+    """Once every net was added to the best set {0, 1}, the driver goes on with ``seed_soup_swap_span``: its weakest
+    member (1) swapped for net 2 was tried ({0, 2}), so net 0 swapped for net 2, {1, 2}."""
+    spec = _spec(n_trials=20, timeout_s=3600, seed_soups=[2], seed_soup_greedy=True,
+                 seed_soup_swap_span=1.0).with_overrides(storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    config = LINEAR.replace(train_iterations=1200).to_mapping()
+    for seed, value in enumerate((74.0, 73.9, 73.8)):
+        extra = {keys.RACE_OF: 0, keys.RACE_SEED: seed - 1} if seed else {}
+        study.add_trial(optuna.trial.create_trial(
+            params=params, distributions=dists, value=value, state=COMPLETE,
+            user_attrs={keys.CONFIG: config, keys.ARTIFACT_NET_JSON: _upload(storages, study, _linear_text(seed)),
+                        **extra},
+        ))  # fmt: skip
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    for slot, value in ((0, 74.3), (1, 73.9), (0, 74.1)):  # {0, 1}, {0, 2}, {0, 1, 2}
+        assert driver._launch_seed_soup(slot)  # noqa: SLF001
+        study.tell(driver._running.pop(slot).trial, value)  # noqa: SLF001
+    assert driver._launch_seed_soup(0)  # noqa: SLF001
+    made = study.trials[-1]
+    assert made.user_attrs[keys.SOUP_OF] == [1, 2] and made.user_attrs[keys.SEED_SOUP_OF] == 0
 
 
 def test_the_driver_soups_a_family_of_linear_twins_and_seeds_its_members_by_the_family_soup(tmp_path: Path) -> None:

@@ -17,7 +17,8 @@ Two rules, both pure functions of the study's trials:
   (``[study] seed_soup_greedy``) a greedy soup: its best set so far plus one more of its nets, kept when it scores
   higher. On the 61 seeds of a crowd-prior hour's linear configuration (best 75.29, 75.28, 75.22, 75.07, …) its
   best 2, 3, 4, 6, 8 souped at 75.54, 75.62, 75.54, 75.56, 75.38, and the greedy soup took the best 3 and then
-  the 74.98 and 74.82 seeds to 75.77 (on 500 unseen runs: best net 75.24, best 3 75.52, greedy 75.64).
+  the 74.98 and 74.82 seeds to 75.77 (on 500 unseen runs: best net 75.24, best 3 75.52, greedy 75.64); with
+  ``[study] seed_soup_swap_span`` it goes on by swaps once no addition is left (``greedy_step``).
 * ``next_seed_run``: before the race, a linear configuration whose best net or soup is within
   ``refine.PARENT_SPAN`` of the study's best gets fresh seeds — the race's (``racing.race_seed``), so they count
   in its race — on the refinement's workers, up to ``[study] seed_soup_runs``: a single training of one is

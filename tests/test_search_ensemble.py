@@ -265,6 +265,18 @@ def test_with_a_swap_floor_the_greedy_soup_goes_on_by_swaps_once_no_addition_is_
     assert ensemble.next_seed_soup(groups, {1: full}, (2,), 0.5, 75.3, 1.0, {1: done}, {1: 4}, swap_span=1.5) is None
 
 
+def test_a_stacks_members_come_from_within_the_stack_span_of_its_best_net() -> None:
+    """A configuration with hidden layers (given a cap, ``most``) takes seeds down to ``STACK_SPAN`` below its best
+    into its stacks; a linear one only within ``span``."""
+    nets = [(1, 75.0), (2, 74.9), (3, 74.2), (4, 73.9), (5, 73.5)]
+    assert ensemble.next_seed_soup({1: nets}, {1: [[1, 2]]}, (2, 4), 0.5, 75.0, 1.0) is None
+    assert ensemble.next_seed_soup({1: nets}, {1: [[1, 2]]}, (2, 4), 0.5, 75.0, 1.0, most={1: 8}) == (1, (1, 2, 3, 4))
+    assert ensemble.next_seed_soup({1: nets}, {1: [[1, 2]]}, (2, 4), 0.5, 75.0, 1.0, most={1: 3}) is None
+    done = {1: [([1, 2], 75.2)]}
+    assert ensemble.next_seed_soup({1: nets}, {1: [[1, 2]]}, (2,), 0.5, 75.0, 1.0, done, {1: 8}) == (1, (1, 2, 3))
+    assert ensemble.STACK_SPAN > 0.5 and 75.0 - ensemble.STACK_SPAN > 73.5  # net 5 is out of every stack
+
+
 def test_seed_soup_swap_span_is_checked() -> None:
     assert _spec().study.seed_soup_swap_span == 0.0 and "seed_soup_swap_span" not in _spec().to_dict()["study"]
     on = _spec(seed_soups=[2], seed_soup_greedy=True, seed_soup_swap_span=1.25)

@@ -46,8 +46,8 @@ from autotune.search.soup import next_soup
 from sim.config import ConfigError
 
 __all__ = [
-    "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "is_linear", "family_key", "seed_nets", "seed_groups",
-    "next_seed_soup", "greedy_step", "next_seed_run",
+    "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "STACK_SPAN", "is_linear", "family_key", "seed_nets",
+    "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run",
 ]  # fmt: skip
 
 STACK_SEED_RUNS = 12
@@ -61,6 +61,13 @@ MAX_STACK_NEURONS = 8192
 is k times as wide as one, and as slow to score (~6 s per 593 units). At 4,096 a crowd-prior hour's race winner
 (``fc:593:tanh``, 24 seeds, 74.01–75.34) stacked at most 6 and its greedy stacks stopped at 75.46; its best 8
 (4,744 units, 51 s to score) scored 75.58, its best 10 75.46."""
+
+STACK_SPAN = 1.25
+"""mph below a configuration's best net within which its seeds are a stack's members (``[study] refine_soup_span``
+when wider): averaging Q-values forgives weaker members more than a greedy linear soup's few. gsurma's setting at
+90k, 15 seeds (74.81, 74.36, 74.33, 74.03, 74.02, 73.80, …): its best 2, 4, 8 stacked at 75.05, 75.19, 75.26; a
+crowd-prior hour's ``fc:593:tanh`` race winner (24 seeds from 75.34): its best 8, down to 75.01, at 75.58. Within
+0.5 mph only gsurma's best 2 (74.97, 74.95) were members, and its stacks stopped at 75.20."""
 
 SeedSoup = tuple[int, tuple[int, ...]]
 """(configuration's trial number, ingredients: trial numbers ascending) of a seed soup to score."""
@@ -158,12 +165,13 @@ def next_seed_soup(
 ) -> SeedSoup | None:
     """The next seed soup to score, or None: over the configurations of ``groups`` (``seed_nets``) whose best net is
     within ``reach`` mph of the study's ``best`` net, best first, the first whose best k nets (k in ``sizes``, in
-    order; nets within ``span`` mph of its best) form a set none of its soups (``tried``: ingredient sets by
-    configuration) had; then, given ``scored`` (its finished soups' ingredients and scores, by configuration), its
-    greedy soup's next step (``greedy_step``); ``most``: the most ingredients a configuration's soup may have (a
-    stack's width grows with them, ``autotune.convnet.stack``), by configuration, unbounded where absent;
-    ``swap_span`` > 0: the greedy soups of the unbounded ones (nets without hidden layers, whose soups score in
-    seconds; a stack's take tens) go on by swaps over their nets within ``swap_span`` of their best."""
+    order; nets within ``span`` mph of its best, a stack's within ``STACK_SPAN`` when wider) form a set none of its
+    soups (``tried``: ingredient sets by configuration) had; then, given ``scored`` (its finished soups' ingredients
+    and scores, by configuration), its greedy soup's next step (``greedy_step``). ``most``: the most ingredients a
+    configuration's soup may have (a stack's width grows with them, ``autotune.convnet.stack``), by configuration,
+    given for exactly the configurations with hidden layers (the stacks). ``swap_span`` > 0: the greedy soups of
+    the others (nets without hidden layers, whose soups score in seconds; a stack's take tens) go on by swaps over
+    their nets within ``swap_span`` of their best."""
     order = sorted(groups.items(), key=lambda g: (-max(s for _, s in g[1]), g[0]))
     for owner, nets in order:
         top = max(s for _, s in nets)
@@ -171,10 +179,11 @@ def next_seed_soup(
             break
         cap = (most or {}).get(owner)
         fits = [k for k in sizes if cap is None or k <= cap]
-        ingredients = next_soup(nets, fits, tried.get(owner, ()), top - span)
+        floor = top - (span if cap is None else max(span, STACK_SPAN))
+        ingredients = next_soup(nets, fits, tried.get(owner, ()), floor)
         if ingredients is None and scored is not None:
             swap_floor = top - swap_span if swap_span > 0 and cap is None else None
-            ingredients = greedy_step(nets, tried.get(owner, ()), scored.get(owner, ()), top - span, cap, swap_floor)
+            ingredients = greedy_step(nets, tried.get(owner, ()), scored.get(owner, ()), floor, cap, swap_floor)
         if ingredients is not None:
             return owner, ingredients
     return None

@@ -470,6 +470,12 @@ def test_with_seed_ensembles_configurations_with_hidden_layers_have_seed_nets_of
     a, b = Entrant(1, 75.0, "a"), Entrant(0, 74.9, "b")
     assert ensemble.next_seed_run([a, b], [(1, 0), (1, 1)], {}, 75.0, 0.5, 4, {1: 2}) == RaceRun(0, 0)
     assert ensemble.next_seed_run([a], [(1, 0)], {}, 75.0, 0.5, 4, {1: 2}) == RaceRun(1, 1)
+    # a capped configuration near the best fresh training is near enough when soups lifted the best net past it
+    c = Entrant(2, 74.7, "c")
+    assert ensemble.next_seed_run([c], [], {}, 75.6, 0.5, 4, {2: 2}) is None
+    assert ensemble.next_seed_run([c], [], {}, 75.6, 0.5, 4, {2: 2}, 74.8) == RaceRun(2, 0)
+    assert ensemble.next_seed_run([c], [], {}, 75.6, 0.5, 4, {2: 2}, 75.3) is None  # its net trails that one
+    assert ensemble.next_seed_run([c], [], {}, 75.6, 0.5, 4, {}, 74.8) is None  # a linear one: by its soups alone
 
 
 def test_seed_ensembles_is_checked() -> None:
@@ -574,3 +580,33 @@ def test_a_configuration_with_hidden_layers_gets_seeds_only_near_the_best(tmp_pa
         owners.append(study.trials[run.number].user_attrs[keys.RACE_OF])
         study.tell(run, 60.0)
     assert owners == [0] * ensemble.STACK_SEED_RUNS
+
+
+def test_a_configuration_with_hidden_layers_near_the_best_training_gets_seeds_when_soups_lead(tmp_path: Path) -> None:
+    """A linear configuration's soup 0.85 mph above a configuration with hidden layers does not keep that one from
+    its seeds: its net is within ``SEED_RUN_REACH`` of the best fresh training (74.8), member against member. A
+    third, 0.8 below that training, gets none. The linear one takes its seeds first (its soup is the higher)."""
+    spec = _spec(n_trials=40, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=3,
+                 seed_ensembles=True).with_overrides(storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    hidden = TINY.replace(train_iterations=1200)
+    linear = _upload(storages, study, _linear_text(0))
+    text = _upload(storages, study, dumps_net(train(hidden.replace(train_iterations=0), seed=0,
+                                                    quick_eval=False).convnet()))  # fmt: skip
+    rows: list[tuple[float, dict[str, Any]]] = [
+        (74.8, {keys.CONFIG: LINEAR.to_mapping(), keys.ARTIFACT_NET_JSON: linear}),
+        (75.65, {keys.CONFIG: LINEAR.to_mapping(), keys.ARTIFACT_NET_JSON: linear, keys.SOUP_OF: [0, 0],
+                 keys.SEED_SOUP_OF: 0, keys.REFINE_OF: refine.Parent(0, None, 74.8).to_attr()}),
+        (74.7, {keys.CONFIG: hidden.replace(layers="fc:4:relu").to_mapping(), keys.ARTIFACT_NET_JSON: text}),
+        (74.0, {keys.CONFIG: hidden.replace(layers="fc:3:relu").to_mapping(), keys.ARTIFACT_NET_JSON: text}),
+    ]  # fmt: skip
+    for value, attrs in rows:
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
+                                                  user_attrs=attrs))  # fmt: skip
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    owners = []
+    while driver._launch_seed_run(1, 0.5):  # noqa: SLF001
+        run = driver._running.pop(1).trial  # noqa: SLF001
+        owners.append(study.trials[run.number].user_attrs[keys.RACE_OF])
+        study.tell(run, 60.0)
+    assert owners == [0] * 3 + [2] * 3  # seed_soup_runs caps both

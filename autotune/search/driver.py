@@ -942,8 +942,9 @@ class Driver:
         """Start a fresh seed of a linear configuration within ``reach`` mph of the study's best net on ``slot``, for
         its seed soups (``ensemble.next_seed_run``, up to ``runs`` or ``[study] seed_soup_runs`` seeds, the fewer):
         a race run before the race, on the race's seeds, so the race counts it. With ``[study] seed_ensembles`` a
-        configuration with hidden layers too, only within ``SEED_RUN_REACH`` and up to ``ensemble.STACK_SEED_RUNS``
-        seeds (one trains for longer: no probe seeds further below). The caller (``_launch_refine``) has checked the
+        configuration with hidden layers too, only within ``SEED_RUN_REACH`` (of the best net, or its own net of
+        the best fresh training's) and up to ``ensemble.STACK_SEED_RUNS`` seeds (one trains for longer: no probe
+        seeds further below). The caller (``_launch_refine``) has checked the
         refinement's share."""
         assert self.study is not None
         st = self.spec.study
@@ -977,7 +978,7 @@ class Driver:
         hidden = {n: ensemble.STACK_SEED_RUNS for n, e in entries.items() if not ensemble.is_linear(e[2])}
         run = ensemble.next_seed_run(
             candidates, launched, level, _best_score(trials), reach, min(runs or st.seed_soup_runs, st.seed_soup_runs),
-            hidden,
+            hidden, _best_score(trials, fresh=True),
         )  # fmt: skip
         return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.SEED_SOUP_RUN)
 
@@ -1527,9 +1528,11 @@ def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, 
         return None
 
 
-def _best_score(trials: Sequence[FrozenTrial]) -> float | None:
-    """The study's best single net's score (``records.best_net``'s, over ``scored_nets``); None before any."""
-    found = [score for t in trials for score, _b in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)]
+def _best_score(trials: Sequence[FrozenTrial], fresh: bool = False) -> float | None:
+    """The study's best single net's score (``records.best_net``'s, over ``scored_nets``); None before any.
+    ``fresh``: of fresh trainings only (no refinement run, soup or stack: nothing trained on or from other nets)."""
+    found = [score for t in trials if not (fresh and keys.REFINE_OF in t.user_attrs)
+             for score, _b in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)]  # fmt: skip
     return max((x for x in found if math.isfinite(x)), default=None)
 
 

@@ -17,7 +17,7 @@ from autotune.search import keys, space, twins
 from autotune.search.driver import Driver
 from autotune.search.gate import distributions
 from autotune.search.objective import TrialOutcome
-from autotune.search.spec import LR_X_INPUTS, SpecError, StudySpec, parse_spec
+from autotune.search.spec import LR_X_INPUTS, Dimension, SpecError, StudySpec, parse_spec
 from autotune.search.storage import open_storage
 from tests.conftest import FakePool
 
@@ -244,3 +244,79 @@ def test_no_twins_without_the_key_or_in_the_race_window(tmp_path: Path) -> None:
     driver._t0 = time.perf_counter() - 3600 * 0.8  # noqa: SLF001 - in the last quarter: the seed race's time
     driver._enqueue_twins()  # noqa: SLF001
     assert len(study.trials) == 1
+
+
+# -- linear neighbours ------------------------------------------------------------------------
+
+
+def test_neighbours_move_one_parameter_a_step_inside_the_space() -> None:
+    """Each step of ``NEIGHBOUR_STEPS`` moves its one parameter (1 − γ × 0.5 and × 2, lanes ± 1, patches ahead × 3/4
+    and × 4/3, patches behind ± 2, the rate × 0.5 and × 2), clipped to the space, an integer rounded but moved by
+    one at least; a step that
+    changes nothing (at a bound) or whose parameter is not searched is left out."""
+    extra = (Dimension("one_minus_gamma", "float", 1e-4, 0.7, log=True), Dimension("patches_behind", "int", 0, 20))
+    params = {"n_layers": 0, "method": "adagrad", LR_X_INPUTS: 3.0, "lanes_side": 2, "patches_ahead": 3,
+              "patches_behind": 1, "one_minus_gamma": 0.1}  # fmt: skip
+    made = twins.neighbours(params, (*_spec().space, *extra))
+    moved = [next((k, t[k]) for k in t if t[k] != params[k]) for t in made]
+    expected = [("one_minus_gamma", 0.05), ("one_minus_gamma", 0.2), ("lanes_side", 1), ("patches_ahead", 2),
+                ("patches_ahead", 4), ("patches_behind", 0), ("patches_behind", 3), (LR_X_INPUTS, 1.5),
+                (LR_X_INPUTS, 6.0)]  # fmt: skip
+    assert moved == expected  # lanes_side 3 is past the space's 2: left out
+    assert all(sum(t[k] != params[k] for k in params) == 1 for t in made)
+    assert isinstance(made[3]["patches_ahead"], int)
+    base = {**params, "patches_ahead": 1}
+    narrow = twins.neighbours(base, _spec().space)  # no γ or behind searched here
+    assert [next((k, t[k]) for k in t if t[k] != base[k]) for t in narrow] == [
+        ("lanes_side", 1), ("patches_ahead", 2), (LR_X_INPUTS, 1.5), (LR_X_INPUTS, 6.0)]  # fmt: skip
+    # 1 patch × 3/4 would be 0, below the space: left out; × 4/3 moves by one at least
+
+
+def test_linear_neighbours_is_checked() -> None:
+    assert _spec().study.linear_neighbours is False and "linear_neighbours" not in _spec().to_dict()["study"]
+    spec = _spec(seed_soups=[2], linear_neighbours=True)
+    assert spec.study.linear_neighbours and spec.to_dict()["study"]["linear_neighbours"] is True
+    assert parse_spec(spec.to_dict(), source="twins.toml") == spec
+    with pytest.raises(SpecError, match=r"\[study\] linear_neighbours: must be true or false, got 1"):
+        _spec(seed_soups=[2], linear_neighbours=1)
+    with pytest.raises(SpecError, match=r"linear_neighbours: retries the configuration of the best seed soup, but "
+                                        r"seed_soups is empty; set seed_soups"):  # fmt: skip
+        _spec(linear_neighbours=True)
+
+
+def test_the_driver_enqueues_the_neighbours_of_the_linear_configuration_whose_soup_is_the_best_net(
+    tmp_path: Path,
+) -> None:
+    driver, study, dists = _driver(tmp_path, seed_soups=[2], linear_neighbours=True)
+    linear = space.encode(driver.spec, HIDDEN.replace(layers="", method="adagrad"))
+    linear = {**linear, "lanes_side": 1, "patches_ahead": 3, LR_X_INPUTS: 1.0}
+    owner = _add(study, dists, linear, 73.0, [(1200, 73.0)])
+    seed = _add(study, dists, linear, 73.5, [(1200, 73.5)], **{keys.RACE_OF: owner, keys.RACE_SEED: 0})
+    soup_attrs = {keys.SEED_SOUP_OF: owner, keys.SOUP_OF: [owner, seed],
+                  keys.REFINE_OF: {"trial": seed, "budget": None, "score": 73.5}}  # fmt: skip
+    _add(study, dists, linear, 73.2, [], **soup_attrs)
+    driver._enqueue_neighbours()  # noqa: SLF001 - the best net is a single training, not the soup: none
+    assert len(study.trials) == 3
+    _add(study, dists, linear, 74.0, [], **soup_attrs)
+    driver._enqueue_neighbours()  # noqa: SLF001
+    waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    fixed = [t.system_attrs["fixed_params"] for t in waiting]
+    assert fixed == twins.neighbours(linear, driver.spec.space) and len(fixed) == 6  # lanes, ahead, rate: each 2
+    assert all(t.user_attrs == {keys.NEIGHBOUR_OF: owner, keys.LADDER_TOP: 1} for t in waiting)
+    _add(study, dists, {**linear, LR_X_INPUTS: 1.5}, 74.2, [], **soup_attrs)  # a better soup of the same
+    # configuration (its best net now a family member's at another rate): no new neighbours
+    driver._enqueue_neighbours()  # noqa: SLF001
+    assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 6
+    # a neighbour trains like a twin: once, at its parent's budget, unpruned
+    assert driver._launch_next(0)  # noqa: SLF001
+    task = driver.pool.tasks[-1]
+    assert task.config["layers"] == "" and task.rungs == (1200,) and driver._running[0].silent  # noqa: SLF001
+    # none from a linear soup that is not the best net, a stack, or in the race's window
+    other = _add(study, dists, {**linear, "patches_ahead": 4}, 73.0, [(1200, 73.0)])
+    _add(study, dists, {**linear, "patches_ahead": 4}, 74.1, [], **{**soup_attrs, keys.SEED_SOUP_OF: other})
+    driver._enqueue_neighbours()  # noqa: SLF001
+    assert {t.user_attrs.get(keys.NEIGHBOUR_OF) for t in study.trials} == {None, owner}
+    driver._t0 = time.perf_counter() - 3600 * 0.8  # noqa: SLF001 - in the last quarter: the seed race's time
+    _add(study, dists, {**linear, "patches_ahead": 4}, 74.5, [], **{**soup_attrs, keys.SEED_SOUP_OF: other})
+    driver._enqueue_neighbours()  # noqa: SLF001
+    assert {t.user_attrs.get(keys.NEIGHBOUR_OF) for t in study.trials} == {None, owner}

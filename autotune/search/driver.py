@@ -36,7 +36,8 @@ Refinement: ``refine_share`` of the workers (outside the race's rounds) train on
 net (``autotune.search.refine``), each run an ordinary trial with ``refine_of``; on the same workers, fresh seeds
 of linear configurations near the best for their seed soups (``autotune.search.ensemble``). Linear twins: each new
 best configuration's ``linear_twins`` are enqueued (``autotune.search.twins``), each one unpruned training at its
-parent's budget, ``twin_of`` its parent.
+parent's budget, ``twin_of`` its parent; likewise the ``linear_neighbours`` of the linear configuration whose seed
+soup is the best net, ``neighbour_of`` it.
 
 Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
 (``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express
@@ -1221,7 +1222,8 @@ class Driver:
         full = trial.user_attrs.get(keys.CONFIG)  # an enqueued full config (crowd replay) wins over the params
         refine_of = trial.user_attrs.get(keys.REFINE_OF)
         race = keys.RACE_OF in trial.user_attrs or refine_of is not None  # one training of a stored config
-        twin = keys.TWIN_OF in trial.user_attrs  # a linear twin: measured at its parent's budget, never pruned
+        twin = keys.TWIN_OF in trial.user_attrs or keys.NEIGHBOUR_OF in trial.user_attrs  # a linear twin or
+        # neighbour: measured at its parent's budget, never pruned
         init_net: str | None = None
         try:
             params = space.sample(trial, self.spec)
@@ -1376,6 +1378,7 @@ class Driver:
             assert outcome.state == FAILED
             self.study.tell(trial, state=TrialState.FAIL)
         self._enqueue_twins()
+        self._enqueue_neighbours()
 
     def _twin_score(self, t: FrozenTrial) -> float | None:
         """A trial's score as a parent of linear twins: its seed-race entry's (its best net at min_top or above)."""
@@ -1404,6 +1407,31 @@ class Driver:
                 user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
             for params in twins.twins(source.params, st.linear_twins):
                 self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
+
+    def _enqueue_neighbours(self) -> None:
+        """Enqueue the neighbours (``[study] linear_neighbours``, ``twins.neighbours``) of the linear configuration
+        whose seed soup is the study's best net, once per configuration (its soups' ``seed_soup_of``; a resumed
+        study sees the neighbours it stored), from the parameters of the soup's best ingredient, each trained like a
+        linear twin: once, at that net's budget, unpruned."""
+        assert self.study is not None
+        if not self.spec.study.linear_neighbours or self._out_of_time() or self._race_window():
+            return
+        trials = self.study.get_trials(deepcopy=False)
+        best = _best_score(trials)
+        soups = [t for t in trials if keys.SEED_SOUP_OF in t.user_attrs and t.state == TrialState.COMPLETE
+                 and t.value is not None and float(t.value) == best]  # fmt: skip
+        if not soups or not ensemble.is_linear(soups[0].user_attrs.get(keys.CONFIG)):
+            return
+        lead = soups[0]
+        owner = int(lead.user_attrs[keys.SEED_SOUP_OF])
+        if any(t.user_attrs.get(keys.NEIGHBOUR_OF) == owner for t in trials):
+            return
+        user: dict[str, Any] = {keys.NEIGHBOUR_OF: owner}
+        budget = lead.user_attrs[keys.CONFIG].get("train_iterations")
+        if self.spec.ladder and budget in self.spec.ladder:  # its neighbours train as long as its nets did
+            user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
+        for params in twins.neighbours(lead.params, self.spec.space):
+            self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
 
     def _fail(self, trial: Trial, cause: str, *, retryable: bool) -> None:
         assert self.study is not None

@@ -117,6 +117,9 @@ SEED_SOUP_RUN: Final = "seed_soup_run"
 TWIN_OF: Final = "twin_of"
 """Linear twin (``[study] linear_twins``): the number of the trial whose parameters it retries without hidden layers,
 with another trainer method or rate."""
+NEIGHBOUR_OF: Final = "neighbour_of"
+"""Linear neighbour (``[study] linear_neighbours``): the linear configuration (its seed soups' ``seed_soup_of``)
+whose parameters it retries with one of γ, the view or the rate moved a step."""
 WARM_START: Final = "warm_start"
 """Crowd prior: where the enqueued setting comes from (``crowd:<submission id>``)."""
 WARM_START_CLIPPED: Final = "warm_start_clipped"

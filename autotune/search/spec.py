@@ -8,7 +8,7 @@ Five tables, every key optional unless said otherwise::
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
-                  linear_twin_span, seed_ensembles, seed_soup_swap_span
+                  linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -306,6 +306,10 @@ class StudySection:
     """With seed_soup_greedy: mph below a linear configuration's best net within which its greedy soup, once no net
     added to its best set scores higher, goes on by swaps — one member replaced, left out, or a lower net added
     (``ensemble.greedy_step``); 0: additions only."""
+    linear_neighbours: bool = False
+    """With seed_soups: whenever a linear configuration's seed soup is the study's best net, its neighbours — its
+    parameters with one of γ, the view or the rate moved a step (``twins.NEIGHBOUR_STEPS``) — are enqueued once,
+    each trained like a linear twin; false: none."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -516,7 +520,9 @@ class StudySpec:
         twins = study.pop("linear_twins")
         if twins:  # likewise
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
-        for key in ("linear_twin_span", "seed_soup_families", "seed_ensembles", "seed_soup_swap_span"):  # likewise
+        optional = ("linear_twin_span", "seed_soup_families", "seed_ensembles", "seed_soup_swap_span",
+                    "linear_neighbours")  # fmt: skip
+        for key in optional:  # likewise
             if not study[key]:
                 del study[key]
         return {
@@ -805,12 +811,19 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if swap_span and not greedy:
         raise where.error("seed_soup_swap_span", "swaps the greedy seed soups' ingredients, but seed_soup_greedy is "
                           "off", "set seed_soup_greedy = true, or remove seed_soup_swap_span")  # fmt: skip
+    neighbours = table.get("linear_neighbours", d.linear_neighbours)
+    if not isinstance(neighbours, bool):
+        raise where.error("linear_neighbours", f"must be true or false, got {neighbours!r}",
+                          "e.g. linear_neighbours = true")  # fmt: skip
+    if neighbours and not seed_soups:
+        raise where.error("linear_neighbours", "retries the configuration of the best seed soup, but seed_soups is "
+                          "empty", "set seed_soups (e.g. [2, 3, 4]), or remove linear_neighbours")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
-        greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span,
+        greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours,
     )  # fmt: skip
 
 

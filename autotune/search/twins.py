@@ -15,6 +15,14 @@ gsurma's crowd setting as a linear adagrad net at 10 per input scored 74.20, 73.
 at 90k: 74.0 on average); jnorthrup-v05's view (6 lanes a side, 52 ahead, none behind) as one, at 1, 3 and 10 per
 input: 65.8–69.1, 59.9–73.2 and 65.3–72.5, so a crowd linear setting is no better a parent than the best.
 
+Linear neighbours (``[study] linear_neighbours``). A linear configuration's soups rise far above its single nets, and
+how far depends on the configuration: in crowd-prior hours the soups of gsurma's view (2 lanes a side, 15 patches
+ahead, 7 behind, γ 0.9) stopped at 75.35 and 75.57 over 43 and 64 seeds, those of a search trial's linear twin (5
+lanes a side, 15 ahead, 9 behind, γ 0.72) reached 75.72 in the hour and 75.80 offline. So once a linear
+configuration's seed soup is the study's best net, its neighbours — its parameters with one of γ (as 1 − γ), the
+view or the rate moved one step (``NEIGHBOUR_STEPS``) — are enqueued once, trained like twins; each being linear,
+it gets probe seeds and soups, and one whose soups come near the best gets its seeds and neighbours in turn.
+
 Pure functions of params and trials; ``autotune.search.driver`` enqueues what they return.
 """
 
@@ -27,13 +35,25 @@ from typing import Any
 from optuna.trial import FrozenTrial
 
 from autotune.search import keys
-from autotune.search.spec import LR_X_INPUTS
+from autotune.search.spec import LR_X_INPUTS, Dimension
 
-__all__ = ["TWIN_SKIP", "parent", "parents", "twins"]
+__all__ = ["NEIGHBOUR_STEPS", "TWIN_SKIP", "neighbours", "parent", "parents", "twins"]
 
-TWIN_SKIP = (keys.RETRY_OF, keys.RACE_OF, keys.REFINE_OF, keys.COPIED_FROM, keys.SOUP_OF, keys.TWIN_OF)
+TWIN_SKIP = (keys.RETRY_OF, keys.RACE_OF, keys.REFINE_OF, keys.COPIED_FROM, keys.SOUP_OF, keys.TWIN_OF,
+             keys.NEIGHBOUR_OF)  # fmt: skip
 """A trial with one of these user attrs is no parent: a retry, a race, refinement or soup run (their scores are not
-their configuration's first measure), copied history, or a twin itself (its twins are its siblings)."""
+their configuration's first measure), copied history, or a twin or neighbour itself (its twins are its siblings)."""
+
+NEIGHBOUR_STEPS: tuple[tuple[str, str, float], ...] = (
+    ("one_minus_gamma", "×", 0.5), ("one_minus_gamma", "×", 2.0),
+    ("lanes_side", "+", -1), ("lanes_side", "+", 1),
+    ("patches_ahead", "×", 0.75), ("patches_ahead", "×", 4 / 3),
+    ("patches_behind", "+", -2), ("patches_behind", "+", 2),
+    (LR_X_INPUTS, "×", 0.5), (LR_X_INPUTS, "×", 2.0),
+)  # fmt: skip
+"""(parameter, × or +, step) of each neighbour, in order: 1 − γ halved and doubled, a lane a side less and more,
+a quarter of the patches ahead less and a third more, two patches behind less and more, the rate per input
+halved and doubled."""
 
 
 def twins(params: Mapping[str, Any], rates: Iterable[tuple[str, Sequence[float]]]) -> list[dict[str, Any]]:
@@ -46,6 +66,28 @@ def twins(params: Mapping[str, Any], rates: Iterable[tuple[str, Sequence[float]]
             twin = {**params, "n_layers": 0, "method": method, LR_X_INPUTS: float(rate)}
             if twin != dict(params) and twin not in out:
                 out.append(twin)
+    return out
+
+
+def neighbours(params: Mapping[str, Any], space: Sequence[Dimension]) -> list[dict[str, Any]]:
+    """``params`` with one parameter moved per ``NEIGHBOUR_STEPS`` entry, in order, inside ``space`` (clipped to a
+    dimension's range; an integer one rounded but moved by one at least); a step whose parameter is not searched,
+    that leaves ``params`` unchanged (at a bound), or that repeats an earlier neighbour is left out."""
+    dims = {d.name: d for d in space}
+    out: list[dict[str, Any]] = []
+    for name, op, step in NEIGHBOUR_STEPS:
+        d = dims.get(name)
+        if d is None or d.kind == "categorical" or name not in params:
+            continue
+        now = params[name]
+        value = now * step if op == "×" else now + step
+        if d.kind == "int":  # at least one unit: a third more than 1 patch is 2
+            value = round(value) if round(value) != now else now + (1 if value > now else -1)
+        assert d.low is not None and d.high is not None
+        value = min(max(value, d.low), d.high)
+        moved = {**params, name: int(value) if d.kind == "int" else float(value)}
+        if moved != dict(params) and moved not in out:
+            out.append(moved)
     return out
 
 

@@ -610,3 +610,29 @@ def test_a_configuration_with_hidden_layers_near_the_best_training_gets_seeds_wh
         owners.append(study.trials[run.number].user_attrs[keys.RACE_OF])
         study.tell(run, 60.0)
     assert owners == [0] * 3 + [2] * 3  # seed_soup_runs caps both
+
+
+def test_a_configuration_whose_nets_cannot_stack_gets_no_seeds_and_no_stack(tmp_path: Path) -> None:
+    """A maxout layer of 3 units in groups of 2 (a stack would split a group across members: the refusal failed a
+    crowd-prior hour's soup trial) or an LRN layer: ``stackable`` says no, so the configuration gets no seed runs and
+    its nets no stack, where an even maxout layer gets both."""
+    from autotune.learner.config import parse_layers
+
+    assert stack.stackable(parse_layers("fc:4:maxout|fc:3:tanh")) and stack.stackable(())
+    assert not stack.stackable(parse_layers("fc:3:maxout")) and not stack.stackable(parse_layers("fc:4:relu|lrn"))
+    for layers, stacks in (("fc:3:maxout", False), ("fc:4:maxout", True)):
+        spec = _spec(n_trials=40, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=3,
+                     seed_ensembles=True).with_overrides(storage=str(tmp_path / f"{layers[3]}.log"),
+                                                         workers=2)  # fmt: skip
+        driver, study, storages, dists, params = _driver_on_journal(spec)
+        config = TINY.replace(train_iterations=1200, layers=layers)
+        text = _upload(storages, study, dumps_net(train(config.replace(train_iterations=0), seed=0,
+                                                        quick_eval=False).convnet()))  # fmt: skip
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=75.0, state=COMPLETE,
+                        user_attrs={keys.CONFIG: config.to_mapping(), keys.ARTIFACT_NET_JSON: text}))  # fmt: skip
+        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        assert driver._launch_seed_run(1, 0.5) is stacks  # noqa: SLF001
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=74.9, state=COMPLETE,
+                        user_attrs={keys.CONFIG: config.to_mapping(), keys.ARTIFACT_NET_JSON: text,
+                                    keys.RACE_OF: 0, keys.RACE_SEED: 1}))  # fmt: skip
+        assert driver._launch_seed_soup(0) is stacks  # noqa: SLF001

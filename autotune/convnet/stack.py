@@ -26,7 +26,7 @@ import numpy as np
 from autotune.convnet import spec
 from autotune.convnet.spec import FC, ConvNet, Layer, NetSpecError
 
-__all__ = ["stack_nets", "stacked_hidden", "widest_hidden"]
+__all__ = ["stack_nets", "stackable", "stacked_hidden", "widest_hidden"]
 
 _PER_UNIT = (spec.Relu, spec.Tanh, spec.Sigmoid, spec.Dropout)
 
@@ -84,6 +84,14 @@ def stacked_hidden(hidden: Sequence[Layer], k: int) -> tuple[Layer, ...]:
     """The hidden layer definitions of a stack of ``k`` nets built from ``hidden`` (every fc's width × k): what its
     config records, so a refinement run trains the stacked net on."""
     return tuple(dataclasses.replace(d, num_neurons=d.num_neurons * k) if isinstance(d, FC) else d for d in hidden)
+
+
+def stackable(hidden: Sequence[Layer]) -> bool:
+    """Whether nets with the hidden layer definitions ``hidden`` stack (``stack_nets`` would not refuse them): fc
+    layers only (an LRN mixes units across members), a maxout one a multiple of its group size wide."""
+    return all(
+        isinstance(d, FC) and not (d.activation == "maxout" and d.num_neurons % (d.group_size or 2)) for d in hidden
+    )
 
 
 def widest_hidden(hidden: Sequence[Layer]) -> int:

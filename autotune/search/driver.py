@@ -915,11 +915,12 @@ class Driver:
                 tried.setdefault(owner, []).append(soup_of)
                 if t.state == TrialState.COMPLETE and t.value is not None:
                     scored.setdefault(owner, []).append((soup_of, float(t.value)))
-        most = {}  # a stack is k times as wide as its members
+        most = {}  # a stack is k times as wide as its members; one that cannot stack (odd maxout, LRN) has none
         for owner in groups:
-            widest = stack.widest_hidden(parse_layers(trials[owner].user_attrs[keys.CONFIG].get("layers", "")))
+            hidden = parse_layers(trials[owner].user_attrs[keys.CONFIG].get("layers", ""))
+            widest = stack.widest_hidden(hidden)
             if widest:
-                most[owner] = max(1, ensemble.MAX_STACK_NEURONS // widest)
+                most[owner] = max(1, ensemble.MAX_STACK_NEURONS // widest) if stack.stackable(hidden) else 1
         pick = ensemble.next_seed_soup(
             groups, tried, st.seed_soups, st.refine_soup_span, _best_score(trials),
             max(SEED_SOUP_REACH, st.seed_soup_reach),
@@ -955,8 +956,10 @@ class Driver:
             if not _original(t) or t.state not in (TrialState.COMPLETE, TrialState.PRUNED):
                 continue
             entry = race_entry(t, self.spec.race_min_budget)
-            if entry is not None and (ensemble.is_linear(entry[2]) or (st.seed_ensembles and reach <= SEED_RUN_REACH)):
-                entries[t.number] = entry  # one with hidden layers: only near the best (no probe seeds)
+            if entry is not None and (ensemble.is_linear(entry[2]) or (
+                    st.seed_ensembles and reach <= SEED_RUN_REACH
+                    and stack.stackable(parse_layers(entry[2].get("layers", ""))))):  # fmt: skip
+                entries[t.number] = entry  # one with hidden layers: only near the best (no probe seeds), if it stacks
         if not entries:
             return False
         candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))

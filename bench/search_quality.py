@@ -674,17 +674,15 @@ def lineage_root(row: TrialRow, by_number: Mapping[int, TrialRow]) -> TrialRow:
 
 
 def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int], int] = ((), 1)) -> TrialRow | None:
-    """The trial whose configuration the arm would pick at ``t_s``: the race winner as ``autotune best`` ranks it
+    """The trial whose configuration the arm would pick at ``t_s``, as ``autotune best`` ranks it: the race winner
     (``racing.standings`` on the race runs finished by ``t_s``; ``race``: the study's stored field and seeds per
-    round, ``read_race``) once a race run of the race itself has finished, else the best trial. Race runs started
-    before the race (seed runs, the incumbent's) count once it has, as they do for the study; before, the field
-    the study stored at the race's start did not exist yet."""
+    round, ``read_race``) once a race run of the race itself has finished; before, the provisional standing's
+    first (``racing.provisional_standings``: the best mean over a configuration's fresh seed runs, once it has
+    ``racing.PROVISIONAL_SEEDS``), else the best trial. Race runs started before the race (seed runs, the
+    incumbent's) count in both; the field the study stored at the race's start did not exist before it."""
     from autotune.search import racing
 
     field, seeds_per_round = race
-    if not any(r.race_of is not None and not (r.seed_run or r.incumbent) and r.end_s is not None and r.end_s <= t_s
-               for r in rows):  # fmt: skip
-        return best_single(rows, t_s)  # the race had not started: its field was stored later (runs before it count)
     results: dict[tuple[int, int], float | None] = {}
     for r in rows:
         if r.race_of is None or r.race_seed is None:
@@ -693,9 +691,16 @@ def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int]
         is_result, score = racing.run_result(state, r.value, r.cause, r.retryable)
         if is_result:
             results[(r.race_of, r.race_seed)] = score
-    if not field or not any(v is not None for v in results.values()):
-        return best_single(rows, t_s)
-    root = racing.standings(field, results, seeds_per_round)[0].number
+    racing_now = any(r.race_of is not None and not (r.seed_run or r.incumbent) and r.end_s is not None and r.end_s <= t_s
+                for r in rows)  # fmt: skip
+    if not racing_now or not field or not any(v is not None for v in results.values()):
+        # before the race (its field was stored later): the provisional standing ``autotune best`` shows
+        provisional = racing.provisional_standings(results)
+        if not provisional:
+            return best_single(rows, t_s)
+        root = provisional[0].number
+    else:
+        root = racing.standings(field, results, seeds_per_round)[0].number
     by_number = {r.number: r for r in rows}
     runs = [r for r in _complete_by(rows, t_s) if r.race_of == root]
     raced = next((r.config for r in runs if r.config is not None), None)  # a kept rung's budget, if it entered so

@@ -226,6 +226,20 @@ def test_chosen_trial_prefers_the_raced_configuration() -> None:
     assert chosen.number == 1 and chosen.config == {"c": 1, "train_iterations": 10_000}  # what the race measured
 
 
+def test_chosen_trial_before_the_race_ranks_configurations_by_their_seed_runs() -> None:
+    """Before the race a lucky seed is not the pick: a configuration with 3 fresh seed runs is ranked by their
+    mean (``racing.provisional_standings``), as ``autotune best`` shows it."""
+    rows = [row(0, 76.0, 10, config={"c": 0}), row(1, 74.0, 20, config={"c": 1})]
+    seeds = [row(2 + i, v, 30 + i, race_of=0, race_seed=i, seed_run=True) for i, v in enumerate((71.0, 72.0, 73.0))]
+    stacks = [row(5 + i, v, 40 + i, race_of=1, race_seed=i, seed_run=True) for i, v in enumerate((73.0, 74.0, 75.0))]
+    assert sq.chosen_trial(rows + seeds, 60).number == 0  # the only one with 3 seeds: 72.0
+    assert sq.chosen_trial(rows + seeds + stacks[:2], 60).number == 0  # trial 1 has 2: not ranked yet
+    assert sq.chosen_trial(rows + seeds + stacks, 60).number == 1  # 74.0 beats 72.0
+    assert sq.chosen_trial(rows + seeds + stacks, 41).number == 0  # by 41 s trial 1's third had not finished
+    assert sq.chosen_trial(rows + stacks[:2], 60).number == 0  # none has 3: the best single trial
+    assert sq.chosen_trial(rows + seeds + stacks, 60, ([0, 1], 1)).number == 1  # a stored field, no race run yet
+
+
 def test_chosen_trial_leaves_out_the_seeds_the_deadline_stopped() -> None:
     """The 30-minute cold study's race: entrant 1 led round 0, its round-1 runs ended at the deadline (PRUNED,
     cause ``deadline…``); the winner is paired on round 0, not entrant 0 for having finished more runs. A race

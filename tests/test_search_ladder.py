@@ -690,6 +690,55 @@ def test_a_race_run_the_deadline_stopped_is_run_again_and_not_held_against_it(tm
     assert summary["standings"][1]["n"] == 2 and summary["standings"][1]["finalist"]
 
 
+def test_before_the_race_the_best_configuration_is_the_best_mean_over_three_fresh_seeds(tmp_path: Path) -> None:
+    """``race_summary`` before the race (no field stored): a provisional standing of the configurations with
+    ``racing.PROVISIONAL_SEEDS`` fresh seed runs, by their mean, not the lucky best trial; ``autotune best`` says
+    so. None while no configuration has that many."""
+    import subprocess
+    import sys
+
+    from autotune.search.records import race_summary
+
+    spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
+    storages = open_storage(spec.study.storage, spec.study.name)
+    study = Driver(spec, storages).open_study()
+    dists = distributions(spec)
+    params = space.encode(spec, TINY)
+    done, failed = optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.FAIL
+
+    def add(state: optuna.trial.TrialState, value: float | None, **attrs: Any) -> None:
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=state,
+                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+
+    add(done, 76.0)  # a lucky seed
+    add(done, 74.0)
+    for i, v in enumerate((71.0, 72.0)):
+        add(done, v, **{keys.RACE_OF: 0, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True})
+    for i, v in enumerate((73.0, 74.0)):
+        add(done, v, **{keys.RACE_OF: 1, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True})
+    add(failed, None, **{keys.RACE_OF: 1, keys.RACE_SEED: 2, keys.SEED_SOUP_RUN: True})
+    assert race_summary(storages, spec.study.name) is None  # 2 fresh seeds each (a failed run is no score)
+    add(done, 73.0, **{keys.RACE_OF: 0, keys.RACE_SEED: 2, keys.SEED_SOUP_RUN: True})
+    summary = race_summary(storages, spec.study.name)
+    assert summary is not None and summary["provisional"] and summary["entrants"] == []
+    assert [r["trial"] for r in summary["standings"]] == [0]
+    assert (summary["winner"]["mean"], summary["winner"]["n"], summary["winner"]["selecting_value"]) == (72.0, 3, 76.0)
+    add(done, 75.0, **{keys.RACE_OF: 1, keys.RACE_SEED: 3, keys.SEED_SOUP_RUN: True})
+    summary = race_summary(storages, spec.study.name)
+    assert summary is not None and [r["trial"] for r in summary["standings"]] == [1, 0]  # 74.0 over 72.0
+    assert summary["winner"]["sd"] == pytest.approx(1.0) and summary["winner"]["scores"] == [73.0, 74.0, 75.0]
+    best = subprocess.run([sys.executable, "-m", "autotune.cli", "best", spec.study.name, "--storage",
+                           spec.study.storage], cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert best.returncode == 0, best.stderr
+    assert "best configuration over fresh seeds so far (before the seed race): trial 1's settings: 74.00 ± 1.00" in (
+        best.stdout
+    )
+    assert "also: trial 0: 72.00 mph over 3 fresh seeds" in best.stdout
+    study.set_user_attr(keys.RACE_FIELD, [0, 1])  # the race started: its standings, not the provisional one
+    summary = race_summary(storages, spec.study.name)
+    assert summary is not None and not summary["provisional"] and summary["entrants"] == [0, 1]
+
+
 def test_the_race_winner_gets_more_seeds_only_once_the_halving_is_over() -> None:
     """``tail_run``: nothing while the halving runs; then the winner's first seed index not yet started (a running
     one counts); a field of one takes its tail after its first round. ``tail_reaches``: within the reach of the

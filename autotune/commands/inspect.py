@@ -133,13 +133,22 @@ def _best(args: argparse.Namespace) -> int:
     if net is not None and net["lineage"]:
         steps = " ← ".join(_net_name(step) for step in net["lineage"])
         print(f"  refined: trial {net['trial']} trained on from {steps} (the fresh training it started from last)")
-    if race is not None and race["winner"] is not None:
+    if race is not None and race.get("provisional"):
+        w = race["winner"]
+        sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""
+        print(
+            f"best configuration over fresh seeds so far (before the seed race): trial {w['trial']}'s "
+            f"settings{_at(w)}: {w['mean']:.2f}{sd} mph (n = {w['n']} fresh seeds{_selected(w)})"
+        )
+        print("  (ranked by the mean of each configuration's fresh seeds, once it has 3; the race decides later)")
+        for row in race["standings"][1:4]:
+            print(f"  also: trial {row['trial']}{_at(row)}: {row['mean']:.2f} mph over {row['n']} fresh seeds")
+    elif race is not None and race["winner"] is not None:
         w = race["winner"]
         sd = f" ± {w['sd']:.2f}" if w["sd"] is not None else ""
         print(
             f"best configuration over fresh seeds (the seed race): trial {w['trial']}'s settings{_at(w)}: "
-            f"{w['mean']:.2f}{sd} mph (n = {w['n']} fresh seeds; {w['selecting_value']:.2f} with the seed that "
-            "selected it)"
+            f"{w['mean']:.2f}{sd} mph (n = {w['n']} fresh seeds{_selected(w)})"
         )
         if w["ranked_on"] and w["ranked_on"] < w["n"]:
             print(
@@ -168,6 +177,12 @@ def _best(args: argparse.Namespace) -> int:
     for name, path in paths.items():
         print(f"wrote {path}" + (" (paste into the DeepTraffic page)" if name == "net.js" else ""))
     return 0
+
+
+def _selected(row: dict[str, Any]) -> str:
+    """'; S with the seed that selected it' for a standing with a selecting score, else ''."""
+    value = row.get("selecting_value")
+    return f"; {value:.2f} with the seed that selected it" if value is not None else ""
 
 
 def _epsilon(net: dict[str, Any]) -> str:

@@ -51,7 +51,8 @@ from autotune.search.seeds import derived_seed
 
 __all__ = [
     "Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "next_runs", "run_result", "signed_rank",
-    "standings", "tail_reaches", "tail_run", "incumbent_run", "RACE_SALT", "TAIL_REACH_MPH",
+    "standings", "provisional_standings", "tail_reaches", "tail_run", "incumbent_run", "RACE_SALT", "TAIL_REACH_MPH",
+    "PROVISIONAL_SEEDS",
 ]  # fmt: skip
 
 RACE_SALT = 0x5EED_2ACE
@@ -64,6 +65,13 @@ net. In the benchmark's ten stored races, the winner's best run was the study's 
 three crowd-prior studies (one-layer tanh nets; one scored 74.1–75.5 on 18 of its 20 trainings at 90k), and
 0.45–1.63 below it in the seven others, where the search after the race found nets 0.08–0.9 below the
 study's best (a cold study's best nets are lucky 10k–30k rungs, not a race winner's seeds)."""
+
+
+PROVISIONAL_SEEDS = 3
+"""Before the race, a configuration is ranked by its fresh seeds (``provisional_standings``) once it has this many
+results. Why not the best single trial: a crowd-prior hour's best trial before the race (study seeds 1 and 2) was
+a lucky seed of a linear configuration whose 64 fresh seeds had a median of 73.4 and 72.8; retrained on 3 more, it
+averaged 71.51 — below gsurma's crowd setting (72.93) — while its seed runs, already in the study, said so."""
 
 
 def race_seed(study_seed: int, index: int) -> int:
@@ -305,3 +313,27 @@ def standings(
         return (-float(st.finalist), order.get(st.number, math.inf), -len(st.scores), -st.mean, field.index(st.number))
 
     return sorted(out, key=rank)
+
+
+def provisional_standings(
+    results: Mapping[tuple[int, int], float | None], min_seeds: int = PROVISIONAL_SEEDS
+) -> list[RaceStanding]:
+    """Before the race: the configurations with at least ``min_seeds`` fresh-seed results (``results``: (race_of,
+    seed index) → score, as for ``standings``; seed runs and the incumbent's runs start before the race), best
+    first by their mean, then by more seeds, then the lower trial number.
+
+    No halving has run, so no one is a finalist and there are no paired seeds: configurations hold different
+    numbers of seeds (a linear one up to ``seed_soup_runs``, one with hidden layers up to 12), and a mean over
+    many beats one over a lucky few only when it is higher. A failed or stopped run (None) is no score and does
+    not count toward ``min_seeds``.
+    """
+    by_config: dict[int, list[tuple[int, float]]] = {}
+    for (number, index), score in results.items():
+        if score is not None and math.isfinite(score):
+            by_config.setdefault(number, []).append((index, float(score)))
+    out = [
+        RaceStanding(number, tuple(score for _i, score in sorted(runs)))
+        for number, runs in by_config.items()
+        if len(runs) >= min_seeds
+    ]
+    return sorted(out, key=lambda st: (-st.mean, -len(st.scores), st.number))

@@ -691,7 +691,9 @@ def race_setup(study_attrs: Mapping[str, Any]) -> tuple[list[int], int]:
 def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
     """The seed race's standings (``autotune.search.racing``): each entrant's fresh-seed mean ± sd and n.
 
-    None when the study has not raced. The winner (``racing.standings``) is the finalist ranked first by
+    Before the race (no field stored yet), a provisional standing (``"provisional": True``): the
+    configurations with ``racing.PROVISIONAL_SEEDS`` fresh-seed runs so far, by their mean; None when none has.
+    The winner (``racing.standings``) is the finalist ranked first by
     paired signed ranks, then mean, on the fresh seeds every finalist has a result for (``ranked_on`` of them;
     a run the deadline stopped is left out for all): the configuration to retrain, as opposed to the best
     single net (the leaderboard's number). An entrant raced at a kept rung's budget (``budget``, else None) was
@@ -701,8 +703,6 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
 
     study = read_study(storages, study_name)
     field, seeds_per_round = race_setup(study.user_attrs)
-    if not field:
-        return None
     trials = study.trials
     results: dict[tuple[int, int], float | None] = {}
     for t in trials:
@@ -712,6 +712,8 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
             if is_result:
                 results[(int(a[keys.RACE_OF]), int(a[keys.RACE_SEED]))] = score
     budgets = study.user_attrs.get(keys.RACE_BUDGETS) or {}
+    if not field:
+        return _provisional_summary(trials, results, budgets)
     rows = []
     for st in racing.standings(field, results, seeds_per_round):
         budget = budgets.get(str(st.number))
@@ -724,4 +726,28 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
                      "scores": list(st.scores), "finalist": st.finalist,
                      "ranked_on": len(st.paired) if st.paired else 0,
                      "paired_mean": paired if paired is not None and math.isfinite(paired) else None})  # fmt: skip
-    return {"entrants": field, "standings": rows, "winner": rows[0] if rows[0]["n"] else None}
+    return {"entrants": field, "standings": rows, "winner": rows[0] if rows[0]["n"] else None, "provisional": False}
+
+
+def _provisional_summary(
+    trials: Sequence[TrialRecord], results: Mapping[tuple[int, int], float | None], budgets: Mapping[str, Any]
+) -> dict[str, Any] | None:
+    """``race_summary`` before the race: the configurations with ``racing.PROVISIONAL_SEEDS`` fresh seeds (seed
+    runs, the incumbent's runs) ranked by their mean (``racing.provisional_standings``); None when none has."""
+    from autotune.search import racing
+
+    standing = racing.provisional_standings(results)
+    if not standing:
+        return None
+    rows = []
+    for st in standing:
+        budget = budgets.get(str(st.number))
+        attrs = trials[st.number].user_attrs
+        rungs = dict(kept_rungs(attrs))
+        selecting = trials[st.number].value if budget is None else rungs.get(budget)
+        if selecting is None and rungs:  # a pruned trial's seeds (a kept rung's budget) before the race stored it
+            selecting = max(rungs.values())
+        rows.append({"trial": st.number, "budget": budget, "selecting_value": selecting, "n": len(st.scores),
+                     "mean": st.mean, "sd": st.sd if len(st.scores) > 1 else None, "scores": list(st.scores),
+                     "finalist": False, "ranked_on": 0, "paired_mean": None})  # fmt: skip
+    return {"entrants": [], "standings": rows, "winner": rows[0], "provisional": True}

@@ -691,8 +691,10 @@ def chosen_trial(rows: Sequence[TrialRow], t_s: float, race: tuple[Sequence[int]
         is_result, score = racing.run_result(state, r.value, r.cause, r.retryable)
         if is_result:
             results[(r.race_of, r.race_seed)] = score
-    racing_now = any(r.race_of is not None and not (r.seed_run or r.incumbent) and r.end_s is not None and r.end_s <= t_s
-                for r in rows)  # fmt: skip
+    racing_now = any(
+        r.race_of is not None and not (r.seed_run or r.incumbent) and r.end_s is not None and r.end_s <= t_s
+        for r in rows
+    )
     if not racing_now or not field or not any(v is not None for v in results.values()):
         # before the race (its field was stored later): the provisional standing ``autotune best`` shows
         provisional = racing.provisional_standings(results)

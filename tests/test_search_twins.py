@@ -320,3 +320,46 @@ def test_the_driver_enqueues_the_neighbours_of_the_linear_configuration_whose_so
     _add(study, dists, {**linear, "patches_ahead": 4}, 74.5, [], **{**soup_attrs, keys.SEED_SOUP_OF: other})
     driver._enqueue_neighbours()  # noqa: SLF001
     assert {t.user_attrs.get(keys.NEIGHBOUR_OF) for t in study.trials} == {None, owner}
+
+
+def test_the_linear_configuration_with_the_best_seed_mean_gets_neighbours_so_a_better_neighbour_climbs_on(
+    tmp_path: Path,
+) -> None:
+    driver, study, dists = _driver(tmp_path, seed_soups=[2], linear_neighbours=True)
+    linear = space.encode(driver.spec, HIDDEN.replace(layers="", method="adagrad"))
+    linear = {**linear, "lanes_side": 1, "patches_ahead": 3, LR_X_INPUTS: 1.0}
+    hidden = space.encode(driver.spec, HIDDEN)
+
+    def seeds(owner: int, params: dict[str, Any], *scores: float) -> None:
+        for i, score in enumerate(scores):
+            _add(study, dists, params, score, [(1200, score)], **{keys.RACE_OF: owner, keys.RACE_SEED: i})
+
+    def waiting_of(owner: int) -> list[dict[str, Any]]:
+        return [t.system_attrs["fixed_params"] for t in study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+                if t.user_attrs.get(keys.NEIGHBOUR_OF) == owner]  # fmt: skip
+
+    parent = _add(study, dists, linear, 74.0, [(1200, 74.0)])
+    seeds(parent, linear, 73.0, 73.4)
+    driver._enqueue_neighbours()  # noqa: SLF001 - two seeds are no standing, and no soup is the best net: none
+    assert len(study.trials) == 3
+    seeds(parent, linear, 73.0, 73.4, 73.8)  # its third seed (the first two again: a retry's result replaces)
+    better_hidden = _add(study, dists, hidden, 74.5, [(1200, 74.5)])
+    seeds(better_hidden, hidden, 74.5, 74.6, 74.7)  # leads the standing, but has hidden layers: passed over
+    driver._enqueue_neighbours()  # noqa: SLF001
+    assert waiting_of(parent) == twins.neighbours(linear, driver.spec.space)
+    assert waiting_of(better_hidden) == []
+    lead = study.get_trials(states=(optuna.trial.TrialState.WAITING,))[0]
+    assert lead.user_attrs == {keys.NEIGHBOUR_OF: parent, keys.LADDER_TOP: 1}  # at its seeds' budget
+    driver._enqueue_neighbours()  # noqa: SLF001 - once per configuration
+    assert len(waiting_of(parent)) == len(twins.neighbours(linear, driver.spec.space))
+    # a neighbour (trained in place of its queued trial) whose seeds average above its parent's: its neighbours next
+    moved = twins.neighbours(linear, driver.spec.space)[0]
+    neighbour = _add(study, dists, moved, 74.2, [(1200, 74.2)], **{keys.NEIGHBOUR_OF: parent})
+    seeds(neighbour, moved, 73.2, 73.3)
+    driver._enqueue_neighbours()  # noqa: SLF001 - below its parent's mean: nothing new
+    assert waiting_of(neighbour) == []
+    seeds(neighbour, moved, 73.2, 73.3, 74.3)
+    driver._enqueue_neighbours()  # noqa: SLF001
+    assert waiting_of(neighbour) == [p for p in twins.neighbours(moved, driver.spec.space)
+                                     if p not in [t.params for t in study.trials]]  # fmt: skip
+    assert waiting_of(neighbour)

@@ -307,9 +307,9 @@ class StudySection:
     added to its best set scores higher, goes on by swaps — one member replaced, left out, or a lower net added
     (``ensemble.greedy_step``); 0: additions only."""
     linear_neighbours: bool = False
-    """With seed_soups: whenever a linear configuration's seed soup is the study's best net, its neighbours — its
-    parameters with one of γ, the view or the rate moved a step (``twins.NEIGHBOUR_STEPS``) — are enqueued once,
-    each trained like a linear twin; false: none."""
+    """With seed_soups: whenever a linear configuration's seed soup is the study's best net, or it leads by mean over
+    its fresh seeds (3 or more), its neighbours — its parameters with one of γ, the view or the rate moved a step
+    (``twins.NEIGHBOUR_STEPS``) — are enqueued once, each trained like a linear twin; false: none."""
 
     @property
     def cost_cap_s(self) -> float:

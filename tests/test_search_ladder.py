@@ -11,6 +11,7 @@ import copy
 import dataclasses
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -654,6 +655,17 @@ def test_one_collapsed_race_seed_does_not_decide_the_race() -> None:
     assert racing.standings(field, results, 2)[0].number == 105
 
 
+def _tiny_adder(study: optuna.Study, spec: StudySpec) -> Callable[..., None]:
+    """add(state, value, **user_attrs): a trial of TINY's parameters with that state, value and attributes."""
+    dists, params = distributions(spec), space.encode(spec, TINY)
+
+    def add(state: optuna.trial.TrialState, value: float | None, **attrs: Any) -> None:
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=state,
+                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+
+    return add
+
+
 def test_a_race_run_the_deadline_stopped_is_run_again_and_not_held_against_it(tmp_path: Path) -> None:
     """The driver's race state and ``race_summary`` classify race runs with ``racing.run_result``: a run the
     deadline stopped is neither launched nor a result (a resumed race runs it again), and the summary's winner
@@ -664,13 +676,9 @@ def test_a_race_run_the_deadline_stopped_is_run_again_and_not_held_against_it(tm
     storages = open_storage(spec.study.storage, spec.study.name)
     driver = Driver(spec, storages)
     study = driver.open_study()
-    dists = distributions(spec)
-    params = space.encode(spec, TINY)
     done, pruned = optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED
 
-    def add(state: optuna.trial.TrialState, value: float | None, **attrs: Any) -> None:
-        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=state,
-                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+    add = _tiny_adder(study, spec)
 
     add(done, 74.0)
     add(done, 73.0)
@@ -702,13 +710,9 @@ def test_before_the_race_the_best_configuration_is_the_best_mean_over_three_fres
     spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
     storages = open_storage(spec.study.storage, spec.study.name)
     study = Driver(spec, storages).open_study()
-    dists = distributions(spec)
-    params = space.encode(spec, TINY)
     done, failed = optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.FAIL
 
-    def add(state: optuna.trial.TrialState, value: float | None, **attrs: Any) -> None:
-        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=state,
-                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+    add = _tiny_adder(study, spec)
 
     add(done, 76.0)  # a lucky seed
     add(done, 74.0)

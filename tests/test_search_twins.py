@@ -284,12 +284,17 @@ def test_linear_neighbours_is_checked() -> None:
         _spec(linear_neighbours=True)
 
 
+def _neighbours_driver(tmp_path: Path) -> tuple[Driver, optuna.Study, dict[str, Any], dict[str, Any]]:
+    """A driver with linear_neighbours on, and a linear adagrad configuration's parameters."""
+    driver, study, dists = _driver(tmp_path, seed_soups=[2], linear_neighbours=True)
+    linear = space.encode(driver.spec, HIDDEN.replace(layers="", method="adagrad"))
+    return driver, study, dists, {**linear, "lanes_side": 1, "patches_ahead": 3, LR_X_INPUTS: 1.0}
+
+
 def test_the_driver_enqueues_the_neighbours_of_the_linear_configuration_whose_soup_is_the_best_net(
     tmp_path: Path,
 ) -> None:
-    driver, study, dists = _driver(tmp_path, seed_soups=[2], linear_neighbours=True)
-    linear = space.encode(driver.spec, HIDDEN.replace(layers="", method="adagrad"))
-    linear = {**linear, "lanes_side": 1, "patches_ahead": 3, LR_X_INPUTS: 1.0}
+    driver, study, dists, linear = _neighbours_driver(tmp_path)
     owner = _add(study, dists, linear, 73.0, [(1200, 73.0)])
     seed = _add(study, dists, linear, 73.5, [(1200, 73.5)], **{keys.RACE_OF: owner, keys.RACE_SEED: 0})
     soup_attrs = {keys.SEED_SOUP_OF: owner, keys.SOUP_OF: [owner, seed],
@@ -325,9 +330,7 @@ def test_the_driver_enqueues_the_neighbours_of_the_linear_configuration_whose_so
 def test_the_linear_configuration_with_the_best_seed_mean_gets_neighbours_so_a_better_neighbour_climbs_on(
     tmp_path: Path,
 ) -> None:
-    driver, study, dists = _driver(tmp_path, seed_soups=[2], linear_neighbours=True)
-    linear = space.encode(driver.spec, HIDDEN.replace(layers="", method="adagrad"))
-    linear = {**linear, "lanes_side": 1, "patches_ahead": 3, LR_X_INPUTS: 1.0}
+    driver, study, dists, linear = _neighbours_driver(tmp_path)
     hidden = space.encode(driver.spec, HIDDEN)
 
     def seeds(owner: int, params: dict[str, Any], *scores: float) -> None:

@@ -636,3 +636,51 @@ def test_a_configuration_whose_nets_cannot_stack_gets_no_seeds_and_no_stack(tmp_
                         user_attrs={keys.CONFIG: config.to_mapping(), keys.ARTIFACT_NET_JSON: text,
                                     keys.RACE_OF: 0, keys.RACE_SEED: 1}))  # fmt: skip
         assert driver._launch_seed_soup(0) is stacks  # noqa: SLF001
+
+
+def test_the_leader_by_seed_mean_takes_every_other_run_of_the_refinement(tmp_path: Path) -> None:
+    """With ``seed_soup_leader`` the configuration with the best mean over its fresh seeds (3 or more) takes turns
+    with the rest of the refinement's runs: here with the probe seeds of two new linear configurations, which alone
+    take every run first (a crowd-prior hour's stream of neighbours held the worker so until the race). The leader
+    is chosen by mean, not level (trial 0's own net is the best, yet trial 1 leads once 0's mean falls), and a probed
+    configuration whose seeds average higher leads in turn, its probes counted among its seeds."""
+    got = {}
+    for on in (False, True):
+        spec = _spec(n_trials=80, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=8,
+                     seed_soup_reach=2.0, seed_soup_leader=on).with_overrides(
+                         storage=str(tmp_path / f"{on}.log"), workers=2)  # fmt: skip
+        driver, study, storages, dists, params = _driver_on_journal(spec)
+        net = _upload(storages, study, _linear_text(0))
+        configs = [LINEAR.replace(train_iterations=1200, patches_ahead=2 + i).to_mapping() for i in range(4)]
+        rows: list[tuple[float, int, dict[str, Any]]] = [
+            (value, i, {}) for i, value in enumerate((75.0, 74.9, 74.5, 74.4))
+        ]
+        for owner, scores in ((0, (74.0, 74.2, 74.4, 74.2)), (1, (73.8,) * 4)):  # means 74.2 and 73.8
+            rows += [(score, owner, {keys.RACE_OF: owner, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True})
+                     for i, score in enumerate(scores)]  # fmt: skip
+        for value, which, attrs in rows:
+            attrs = {keys.CONFIG: configs[which], keys.ARTIFACT_NET_JSON: net, **attrs}
+            study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
+                                                      user_attrs=attrs))  # fmt: skip
+        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        runs = []
+        for _ in range(8):
+            assert driver._launch_refine(0)  # noqa: SLF001
+            run = driver._running.pop(0).trial  # noqa: SLF001
+            attrs = study.trials[run.number].user_attrs
+            runs.append((attrs[keys.RACE_OF], attrs[keys.RACE_SEED], bool(attrs.get(keys.SEED_LEADER_RUN))))
+            study.tell(run, 70.0 if attrs.get(keys.SEED_LEADER_RUN) else 74.0)  # each leader's run lowers its mean
+        got[on] = runs
+    assert got[False] == [(2, i, False) for i in range(4)] + [(3, i, False) for i in range(4)]
+    assert got[True] == [(0, 4, True), (2, 0, False), (1, 4, True), (2, 1, False), (0, 5, True), (2, 2, False),
+                         (2, 3, True), (3, 0, False)]  # fmt: skip
+
+
+def test_seed_soup_leader_is_checked() -> None:
+    assert not _spec().study.seed_soup_leader and "seed_soup_leader" not in _spec().to_dict()["study"]
+    spec = _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_leader=True)
+    assert spec.to_dict()["study"]["seed_soup_leader"] is True
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_leader: .*seed_soup_runs = 0.*set seed_soup_runs"):
+        _spec(seed_soups=[2], seed_soup_leader=True)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_leader: must be true or false, got 1"):
+        _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_leader=1)

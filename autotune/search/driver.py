@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import itertools
 import math
 import os
 import socket
@@ -773,16 +774,17 @@ class Driver:
         return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.INCUMBENT_RUN)
 
     def _launch_race_run(
-        self, slot: int, trials: list[FrozenTrial], config: dict[str, Any], run: racing.RaceRun, flag: str
+        self, slot: int, trials: list[FrozenTrial], config: dict[str, Any], run: racing.RaceRun, *flags: str
     ) -> bool:
         """Enqueue and start ``run`` (a race seed of a configuration, ``config`` its race entry's) before the race,
-        marked ``flag`` (an incumbent run, a seed soup's seed); False when it would not finish before the deadline."""
+        marked ``flags`` (an incumbent run, a seed soup's seed, the leader's); False when it would not finish before
+        the deadline."""
         assert self.study is not None
         if self._race_cost(config) * RACE_MARGIN > self._time_left():
             return False
         self.study.enqueue_trial(dict(trials[run.race_of].params), user_attrs={
             keys.CONFIG: config, keys.SEED: racing.race_seed(self.spec.study.seed, run.seed_index),
-            keys.RACE_OF: run.race_of, keys.RACE_SEED: run.seed_index, flag: True,
+            keys.RACE_OF: run.race_of, keys.RACE_SEED: run.seed_index, **dict.fromkeys(flags, True),
         })  # fmt: skip
         return self._launch_next(slot)
 
@@ -810,7 +812,12 @@ class Driver:
         The parent is chosen when the run starts, over every net stored by then, refinement runs included
         (``refine.choose_parent``): a run that beat its parent is the next one's (the runs climb); once the best
         had its runs, the next best within ``refine.PARENT_SPAN`` mph has them. Its seed is the study's refinement
-        seed number k, k = the refinement runs started before it."""
+        seed number k, k = the refinement runs started before it.
+
+        With ``[study] seed_soup_leader`` the configuration that leads by mean over its fresh seeds takes every other
+        run (``_leader_turn``): on a crowd-prior hour (seed 2) the stream of neighbours' 4 probe seeds held the
+        worker until the race, so no configuration had more than 4 seeds before it, and the race winner (75.22 over
+        22 seeds, souped to 75.61) got its seeds only in the last quarter."""
         assert self.study is not None
         st = self.spec.study
         if st.refine_share <= 0.0 or (self._race_window() and not self._race_over):
@@ -819,6 +826,18 @@ class Driver:
             return False
         if not self._refine_open():
             return False
+        if not st.seed_soup_leader:
+            return self._launch_refine_run(slot)
+        leader_first = self._leader_turn()  # the leader and the rest take turns; either takes the other's idle run
+        if leader_first and self._launch_leader_seed(slot):
+            return True
+        return self._launch_refine_run(slot) or (not leader_first and self._launch_leader_seed(slot))
+
+    def _launch_refine_run(self, slot: int) -> bool:
+        """``_launch_refine``'s run other than the leader's seeds: a linear configuration's probe seeds, seeds near
+        the best net, a soup of the parent's runs, or a refinement run, in that order."""
+        assert self.study is not None
+        st = self.spec.study
         if st.seed_soup_runs and (self._launch_seed_run(slot, st.seed_soup_reach, ensemble.PROBE_SEEDS)
                                   or self._launch_seed_run(slot, SEED_RUN_REACH)):  # fmt: skip
             return True  # a configuration in reach first gets its probe seeds; one near the best, all its seeds
@@ -828,7 +847,8 @@ class Driver:
             for t in trials
         ]  # fmt: skip
         wide = st.seed_soup_runs > 0 and st.seed_soup_reach > SEED_RUN_REACH
-        seeds = sum(1 for t in trials if t.user_attrs.get(keys.SEED_SOUP_RUN) and keys.RETRY_OF not in t.user_attrs)
+        seeds = sum(1 for t in trials if t.user_attrs.get(keys.SEED_SOUP_RUN) and not t.user_attrs.keys() & {
+            keys.RETRY_OF, keys.SEED_LEADER_RUN})  # fmt: skip
         if wide and seeds <= sum(r is not None for r in refine_ofs) and self._launch_seed_run(slot, st.seed_soup_reach):
             return True  # a linear configuration further below the best: every other run of this worker
         parent = refine.choose_parent(
@@ -985,6 +1005,54 @@ class Driver:
             hidden, _best_score(trials, fresh=True),
         )  # fmt: skip
         return run is not None and self._launch_race_run(slot, trials, entries[run.race_of][2], run, keys.SEED_SOUP_RUN)
+
+    def _leader_turn(self) -> bool:
+        """Whether the refinement's next run is the leader's seed (``[study] seed_soup_leader``): the last of its
+        training runs (seed runs, refinement runs; retries aside) was not one (``keys.SEED_LEADER_RUN``)."""
+        assert self.study is not None
+        last: Mapping[str, Any] = {}
+        for t in self.study.get_trials(deepcopy=False):
+            a = t.user_attrs
+            if keys.RETRY_OF not in a and (a.get(keys.SEED_SOUP_RUN) or (
+                    keys.REFINE_OF in a and keys.SOUP_OF not in a)):  # fmt: skip
+                last = a
+        return not last.get(keys.SEED_LEADER_RUN)
+
+    def _seed_leader(self) -> tuple[int, int, dict[str, Any]] | None:
+        """(configuration, its next seed index, its race entry's config) of the best configuration by mean over its
+        fresh seeds (``racing.provisional_standings``) that may take more (``_launch_seed_run``'s kinds, under their
+        cap: ``seed_soup_runs``, or ``ensemble.STACK_SEED_RUNS`` with hidden layers), or None."""
+        assert self.study is not None
+        st = self.spec.study
+        trials = self.study.get_trials(deepcopy=False)
+        results, launched = self._race_results()
+        for standing in racing.provisional_standings(results):
+            entry = race_entry(trials[standing.number], self.spec.race_min_budget)
+            if entry is None:
+                continue
+            config = entry[2]
+            if ensemble.is_linear(config):
+                cap = st.seed_soup_runs
+            elif st.seed_ensembles and stack.stackable(parse_layers(config.get("layers", ""))):
+                cap = min(st.seed_soup_runs, ensemble.STACK_SEED_RUNS)
+            else:
+                continue
+            mine = {s for (n, s) in launched if n == standing.number}
+            if len(mine) < cap:
+                return standing.number, next(i for i in itertools.count() if i not in mine), config
+        return None
+
+    def _launch_leader_seed(self, slot: int) -> bool:
+        """Start the next fresh seed of ``_seed_leader`` on ``slot``, a seed run like ``_launch_seed_run``'s; False
+        when there is no such configuration or the run would not fit the time left."""
+        leader = self._seed_leader()
+        if leader is None:
+            return False
+        assert self.study is not None
+        number, index, config = leader
+        run = racing.RaceRun(number, index)
+        trials = self.study.get_trials(deepcopy=False)
+        return self._launch_race_run(slot, trials, config, run, keys.SEED_SOUP_RUN, keys.SEED_LEADER_RUN)
 
     def _soup_net(self, ingredients: list[int], stacked: bool = False) -> str:
         """The convnetjs Net JSON of the weight soup of ``ingredients``' stored nets; ``stacked`` (a seed soup): their

@@ -114,6 +114,9 @@ SEED_SOUP_OF: Final = "seed_soup_of"
 (its ``soup_of``)."""
 SEED_SOUP_RUN: Final = "seed_soup_run"
 """True on a race run started before the race for a linear configuration's seed soups (``[study] seed_soup_runs``)."""
+SEED_LEADER_RUN: Final = "seed_leader_run"
+"""True on a seed soup's seed run (``seed_soup_run``) given to the configuration that led by mean over its fresh seeds
+(``[study] seed_soup_leader``): the leader's runs and the others' take turns."""
 TWIN_OF: Final = "twin_of"
 """Linear twin (``[study] linear_twins``): the number of the trial whose parameters it retries without hidden layers,
 with another trainer method or rate."""

@@ -34,10 +34,11 @@ ordinary trial with ``race_of`` / ``race_seed``. Before the race, ``intensify_sh
 the incumbent on the race's seeds while its runs reach the study's best net (``_launch_incumbent``).
 Refinement: ``refine_share`` of the workers (outside the race's rounds) train on from the study's best single
 net (``autotune.search.refine``), each run an ordinary trial with ``refine_of``; on the same workers, fresh seeds
-of linear configurations near the best for their seed soups (``autotune.search.ensemble``). Linear twins: each new
-best configuration's ``linear_twins`` are enqueued (``autotune.search.twins``), each one unpruned training at its
-parent's budget, ``twin_of`` its parent; likewise the ``linear_neighbours`` of the linear configuration whose seed
-soup is the best net, ``neighbour_of`` it.
+of linear configurations near the best for their seed soups (``autotune.search.ensemble``), every other one the
+leader's by mean over its fresh seeds with ``seed_soup_leader``. Linear twins: each new best configuration's
+``linear_twins`` are enqueued (``autotune.search.twins``), each one unpruned training at its parent's budget,
+``twin_of`` its parent; likewise the ``linear_neighbours`` of the linear configuration whose seed soup is the best
+net, and of the linear leader by mean, ``neighbour_of`` it.
 
 Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
 (``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express

@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
-import itertools
 import math
 import os
 import socket
@@ -1019,29 +1018,28 @@ class Driver:
                 last = a
         return not last.get(keys.SEED_LEADER_RUN)
 
-    def _seed_leader(self) -> tuple[int, int, dict[str, Any]] | None:
-        """(configuration, its next seed index, its race entry's config) of the best configuration by mean over its
-        fresh seeds (``racing.provisional_standings``) that may take more (``_launch_seed_run``'s kinds, under their
-        cap: ``seed_soup_runs``, or ``ensemble.STACK_SEED_RUNS`` with hidden layers), or None."""
+    def _seed_leader(self) -> tuple[racing.RaceRun, dict[str, Any]] | None:
+        """(its next seed run, its race entry's config) of the best configuration by mean over its fresh seeds
+        (``racing.provisional_standings``) that may take more (``_launch_seed_run``'s kinds, under their cap:
+        ``seed_soup_runs``, or ``ensemble.STACK_SEED_RUNS`` with hidden layers; ``ensemble.next_seed_run`` ranked by
+        that mean, with no reach), or None."""
         assert self.study is not None
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)
         results, launched = self._race_results()
+        candidates, configs, most = [], {}, {}
         for standing in racing.provisional_standings(results):
             entry = race_entry(trials[standing.number], self.spec.race_min_budget)
             if entry is None:
                 continue
-            config = entry[2]
-            if ensemble.is_linear(config):
-                cap = st.seed_soup_runs
-            elif st.seed_ensembles and stack.stackable(parse_layers(config.get("layers", ""))):
-                cap = min(st.seed_soup_runs, ensemble.STACK_SEED_RUNS)
-            else:
-                continue
-            mine = {s for (n, s) in launched if n == standing.number}
-            if len(mine) < cap:
-                return standing.number, next(i for i in itertools.count() if i not in mine), config
-        return None
+            config = configs[standing.number] = entry[2]
+            if not ensemble.is_linear(config):
+                if not (st.seed_ensembles and stack.stackable(parse_layers(config.get("layers", "")))):
+                    continue
+                most[standing.number] = ensemble.STACK_SEED_RUNS
+            candidates.append(racing.Entrant(standing.number, standing.mean, racing.config_key(config)))
+        run = ensemble.next_seed_run(candidates, launched, {}, None, 0.0, st.seed_soup_runs, most)
+        return None if run is None else (run, configs[run.race_of])
 
     def _launch_leader_seed(self, slot: int) -> bool:
         """Start the next fresh seed of ``_seed_leader`` on ``slot``, a seed run like ``_launch_seed_run``'s; False
@@ -1050,8 +1048,7 @@ class Driver:
         if leader is None:
             return False
         assert self.study is not None
-        number, index, config = leader
-        run = racing.RaceRun(number, index)
+        run, config = leader
         trials = self.study.get_trials(deepcopy=False)
         return self._launch_race_run(slot, trials, config, run, keys.SEED_SOUP_RUN, keys.SEED_LEADER_RUN)
 

@@ -4,6 +4,7 @@
     python bench/train_throughput.py --repeats 1 --configs network_basic --no-eval
     python bench/train_throughput.py --stream original --dtype float64 --no-eval   # the original's own runs
     python bench/train_throughput.py --learner exact --no-eval                      # the numba replica
+    python bench/train_throughput.py --configs network_basic --other-agents 10 --no-eval   # v2 with 10 agents
 
 For each reference config (settings and JS wall times from learner_scores.json) the full training
 protocol runs ``--repeats`` times (seeds 1, 2, …; no quick evaluations, as train.js has none) in
@@ -65,7 +66,13 @@ def _exact(config, seed: int):  # noqa: ANN001, ANN202
 
 
 def bench_training(
-    names: list[str], repeats: int, iterations: int | None, learner: str, stream: str, dtype: str | None
+    names: list[str],
+    repeats: int,
+    iterations: int | None,
+    learner: str,
+    stream: str,
+    dtype: str | None,
+    other_agents: int | None = None,
 ) -> dict[str, dict]:
     js = js_iterations_per_second()
     results = {}
@@ -73,6 +80,8 @@ def bench_training(
         overrides: dict[str, object] = {"dtype": dtype} if dtype else {}
         if iterations is not None:
             overrides["train_iterations"] = iterations
+        if other_agents is not None:
+            overrides["other_agents"] = other_agents
         config = preset(name, **overrides)
         wall, cpu, runs = [], [], []
         if learner == "exact":
@@ -91,15 +100,17 @@ def bench_training(
             runs.append({"seed": seed, "seconds": seconds, "cpu_seconds": cpu_s, "updates": updates,
                          "diverged": diverged, "training_run_scores": scores})  # fmt: skip
         med_wall, med_cpu = statistics.median(wall), statistics.median(cpu)
+        ref = js[name] if other_agents is None else None  # the JS ran each config with its own agents only
         results[name] = {
             "ruleset": config.ruleset,
+            "other_agents": config.other_agents,
             "train_iterations": config.train_iterations,
             "it_per_s_wall": med_wall,
             "it_per_s_cpu": med_cpu,
-            "js_it_per_s": js[name],
-            "speedup_wall": med_wall / js[name],
-            "speedup_cpu": med_cpu / js[name],
-            "target_speedup": TARGETS.get(name),
+            "js_it_per_s": ref,
+            "speedup_wall": med_wall / ref if ref else None,
+            "speedup_cpu": med_cpu / ref if ref else None,
+            "target_speedup": TARGETS.get(name) if ref else None,
             "learner": learner,
             "stream": stream,
             "dtype": "float64" if learner == "exact" else config.dtype,
@@ -136,20 +147,32 @@ def main() -> int:
     parser.add_argument("--learner", choices=["torch", "exact"], default="torch", help="torch (default) or the replica")
     parser.add_argument("--stream", choices=["independent", "original"], default="independent")
     parser.add_argument("--dtype", choices=["float32", "float64"], default=None, help="torch learner precision")
+    parser.add_argument(
+        "--other-agents",
+        type=int,
+        default=None,
+        metavar="N",
+        help="override otherAgents (v2 configs only; the JS figures are for the config's own)",
+    )
     args = parser.parse_args()
     if args.learner == "exact":
         if args.stream == "independent" and "--stream" in sys.argv:
             parser.error("--learner exact always draws from the original stream; drop --stream independent")
         args.stream = "original"  # the replica has no other stream
-    training = bench_training(args.configs, args.repeats, args.iterations, args.learner, args.stream, args.dtype)
+    if args.other_agents is not None and not all(preset(n).ruleset == "v2" for n in args.configs):
+        parser.error("--other-agents: only the v2 configs have other agents; e.g. --configs network_basic")
+    training = bench_training(args.configs, args.repeats, args.iterations, args.learner, args.stream, args.dtype,
+                              args.other_agents)  # fmt: skip
     print(f"learner {args.learner}, stream {args.stream}")
-    print(f"{'config':<14} {'ruleset':<7} {'iterations':>10} {'it/s wall':>10} {'it/s cpu':>9} {'JS it/s':>8} "
-          f"{'× wall':>7} {'× cpu':>6} {'target':>7}")  # fmt: skip
+    print(f"{'config':<14} {'ruleset':<7} {'agents':>6} {'iterations':>10} {'it/s wall':>10} {'it/s cpu':>9} "
+          f"{'JS it/s':>8} {'× wall':>7} {'× cpu':>6} {'target':>7}")  # fmt: skip
     for name, r in training.items():
         target = f"≥{r['target_speedup']:.0f}×" if r["target_speedup"] else "-"
-        print(f"{name:<14} {r['ruleset']:<7} {r['train_iterations']:>10,} {r['it_per_s_wall']:>10,.0f} "
-              f"{r['it_per_s_cpu']:>9,.0f} {r['js_it_per_s']:>8,.0f} {r['speedup_wall']:>6.1f}× "
-              f"{r['speedup_cpu']:>5.1f}× {target:>7}")  # fmt: skip
+        js_s, xw, xc = ((f"{r['js_it_per_s']:,.0f}", f"{r['speedup_wall']:.1f}×", f"{r['speedup_cpu']:.1f}×")
+                        if r["js_it_per_s"] else ("-", "-", "-"))  # fmt: skip
+        rates = f"{r['it_per_s_wall']:>10,.0f} {r['it_per_s_cpu']:>9,.0f}"
+        print(f"{name:<14} {r['ruleset']:<7} {r['other_agents']:>6} {r['train_iterations']:>10,} "
+              f"{rates} {js_s:>8} {xw:>7} {xc:>6} {target:>7}")  # fmt: skip
     out = {"training": training}
     if not args.no_eval:
         ev = bench_eval()

@@ -1,6 +1,6 @@
-"""Ruleset dispatch and the two compiled drivers built on the split frame.
+"""Ruleset dispatch and the compiled drivers built on the split frame.
 
-Both drivers step the same ``frame_pre``/``frame_post`` pair (``engine_v1``, ``engine_v2``);
+The drivers step the same ``frame_pre``/``frame_post`` pair (``engine_v1``, ``engine_v2``);
 there is no second, slower copy of the rules:
 
 * ``advance_batch`` — many worlds in parallel (``prange``): each world runs frames until one of
@@ -11,6 +11,9 @@ there is no second, slower copy of the rules:
   protocols are sequential by nature (v2 runs are coupled through ``reset()``, v1-original is one
   random stream), so they need one fast world rather than many; ``sim.policies.run_builtin``
   runs it over many worlds in parallel, and ``run_compiled`` takes any policy as an argument.
+* ``advance_one`` — ``advance_batch`` for one world without the thread pool (training), and
+  ``advance_one_agents``, which answers the other cars' decisions inline from a list of actions
+  and stops only at the ego's (a training run's agents acting at random, spec v2 §8.3).
 
 A run's score is ``⌊(sum/frames)·2000⌋/100`` (v1 §9, v2 §11): mean mph truncated to 2 decimals.
 """
@@ -213,6 +216,56 @@ def advance_one(
     """``advance_batch`` without the thread pool: the cheapest call for one world (training)."""
     for w in range(cars.shape[0]):
         _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
+
+
+@njit(cache=True, error_model="numpy")
+def advance_one_agents(
+    cars: np.ndarray,
+    grid: np.ndarray,
+    fs: np.ndarray,
+    ints: np.ndarray,
+    mr: np.ndarray,
+    cfg: np.ndarray,
+    actions: np.ndarray,
+    obs: np.ndarray,
+    obs_car: np.ndarray,
+    obs_reward: np.ndarray,
+    scores: np.ndarray,
+    ego: np.ndarray,
+    run_seeds: np.ndarray,
+    agent_actions: np.ndarray,
+    pos: int,
+) -> int:
+    """``advance_one`` for world 0 that answers the other cars' decisions inline, in order, from
+    ``agent_actions[pos:]`` (no observation is built for them): it stops at the ego's decision, at the
+    world's end, or at a car's decision once those actions are used up (observed as ``advance_one``
+    would). Returns the new ``pos``. The frames are ``advance_one``'s, one decision per call
+    apart: a training run whose other agents act without looking (spec v2 §8.3, ε = 1) needs no
+    trip to Python per agent decision."""
+    w = 0
+    obs_car[w] = -1
+    if ints[w, I_DONE] != 0:
+        return pos
+    if ints[w, I_DECIDER] >= 0:
+        frame_post(cars, grid, fs, ints, cfg, w, actions[w])
+    frames = cfg[K_FRAMES]
+    n = agent_actions.shape[0]
+    while True:
+        if ints[w, I_FRAME] >= frames:
+            if _finish_run(fs, ints, cfg, w, scores, ego):
+                return pos
+            _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
+        car = frame_pre(cars, grid, fs, ints, mr, cfg, w)
+        if car > 0 and pos < n:
+            frame_post(cars, grid, fs, ints, cfg, w, agent_actions[pos])
+            pos += 1
+        elif car >= 0:
+            observe(cars, grid, cfg, w, car, obs[w])
+            obs_car[w] = car
+            obs_reward[w] = fs[w, F_LAST_REWARD] if car == 0 else math.nan
+            return pos
+        else:
+            frame_post(cars, grid, fs, ints, cfg, w, -1)
 
 
 @njit(error_model="numpy", inline="always")

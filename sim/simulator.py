@@ -255,6 +255,17 @@ class Simulator:
         engine.advance_one(*self._advance_args)
         return int(self._obs_car[0])
 
+    def step_single_agents(self, action: int, agent_actions: np.ndarray, pos: int) -> tuple[int, int]:
+        """``step_single``, with the other cars' decisions answered inline from ``agent_actions[pos:]``
+        (int64, trusted 0–4) until the ego must decide again, the world ends, or they are used up.
+
+        Returns (the deciding car or −1, the new ``pos``); a car other than the ego comes back only when
+        the actions ran out, observed like ``step_single``'s.
+        """
+        self._actions[0] = action
+        pos = engine.advance_one_agents(*self._advance_args, agent_actions, pos)
+        return int(self._obs_car[0]), pos
+
     @property
     def obs_inputs(self) -> np.ndarray:
         """(n_worlds, D) buffer holding each waiting world's latest observation."""

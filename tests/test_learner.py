@@ -403,6 +403,44 @@ def test_single_world_fast_path_matches_public_api():
     assert np.array_equal(s1, s2)
 
 
+@pytest.mark.parametrize("supply", [10_000, 7])
+def test_agents_answered_inline_match_stepping_them_one_by_one(supply):
+    """``step_single_agents``: the other cars' decisions answered inside the simulator from a given list are the
+    frames ``step_single`` plays answering them one by one; with the list used up, the next agent's decision
+    comes back observed, as ``step_single`` leaves it."""
+    config = tiny(ruleset="v2", other_agents=4, lanes_side=1, patches_ahead=3)
+    rng = np.random.default_rng(3)
+    ego_actions, agent_actions = rng.integers(0, 5, 200), rng.integers(0, 5, supply)
+
+    def run(inline: bool):
+        sim = Simulator(config.engine_config, 1, 900, 2)
+        sim.seed_training(4321, 5)
+        trace, k, pos = [], 0, 0
+        car = sim.start_single()
+        while car >= 0:
+            trace.append((car, sim.obs_inputs[0].copy(), float(sim.obs_reward[0]) if car == 0 else None))
+            if car == 0:
+                action = int(ego_actions[k % 200])
+                k += 1
+                if inline:
+                    car, pos = sim.step_single_agents(action, agent_actions, pos)
+                    continue
+            else:
+                action = int(agent_actions[pos]) if pos < supply else 2
+                pos += 1
+            car = sim.step_single(action)
+        return trace, pos, sim.scores.copy(), sim.frames_simulated, [a.copy() for a in sim.state_arrays]
+
+    (t1, p1, s1, f1, a1), (t2, p2, s2, f2, a2) = run(True), run(False)
+    assert p1 == p2 > 100 and f1 == f2 == 1800 and np.array_equal(s1, s2)
+    assert all(np.array_equal(x, y) for x, y in zip(a1, a2, strict=True))
+    agent_index = np.cumsum([c > 0 for c, _, _ in t2]) - 1  # the k-th agent decision stepped one by one
+    seen = [row for row, k in zip(t2, agent_index, strict=True) if row[0] == 0 or k >= supply]
+    assert len(t1) == len(seen) >= 60 and (supply > p2 or sum(c > 0 for c, _, _ in t1) == p2 - supply > 0)
+    for (c1, x1, r1), (c2, x2, r2) in zip(t1, seen, strict=True):
+        assert c1 == c2 and np.array_equal(x1, x2) and r1 == r2
+
+
 @pytest.mark.parametrize("ruleset", ["v1", "v2"])
 def test_bogus_first_reward_and_transition_across_reset(ruleset):
     """Each run's first reward covers one frame (≈ −2.9); the transition spanning the reset is stored as is."""
@@ -510,6 +548,26 @@ def test_v2_agents_during_training():
     per_run = -(-config.schedule[1] // 30)
     assert r.decisions == config.schedule[0] * per_run and r.agent_decisions > 2 * r.decisions
     assert not r.diverged
+
+
+def test_blind_agents_are_answered_inside_the_simulator_with_the_same_draws():
+    """Agents at ε = 1 (burnin > tw + 1) take their two draws per decision a block ahead and are answered inside
+    the simulator: the training run is the one deciding them one by one gave (pinned before the change:
+    agent decisions, training-run scores and the trained weights' digest, bit for bit)."""
+    import hashlib
+
+    from autotune.learner.agents import TrainingAgents
+
+    config = _small_training_config(other_agents=10, temporal_window=2, layers="", method="adagrad",
+                                    train_iterations=1500)  # fmt: skip
+    assert TrainingAgents(config, DeepQLearner(config, 0), np.random.SeedSequence(1)).blind
+    r = train(config, seed=7, quick_eval=False)
+    weights = np.concatenate([p.detach().numpy().ravel() for p in r.module.parameters()])
+    assert (r.agent_decisions, r.decisions, r.frames) == (18620, 2070, 62070)
+    assert r.training_run_scores == [56.57, 59.28]
+    assert hashlib.sha256(weights.tobytes()).hexdigest()[:16] == "fe305255b07aa7e2"
+    greedy = _small_training_config(other_agents=2, temporal_window=1, learning_steps_burnin=0, learning_steps_total=4)
+    assert not TrainingAgents(greedy, DeepQLearner(greedy, 0), np.random.SeedSequence(1)).blind
 
 
 def test_zero_iterations():

@@ -57,6 +57,12 @@ def warm(ruleset: str) -> None:
     car = single.start_single()
     while car >= 0:
         car = single.step_single(1)
+    single = Simulator(engine, n_worlds=1, frames_per_run=60)
+    single.seed_independent(1)
+    car, pos = single.start_single(), 0
+    while car >= 0:
+        car, pos = single.step_single_agents(1, np.ones(3, dtype=np.int64), pos) if car == 0 else (
+            single.step_single(2), pos)  # fmt: skip
     for builtin in BUILTINS.values():  # each compiled twin is its own specialization of the drivers
         bound = builtin.bind(engine)
         batch = Simulator(engine, 2, 60, 2)

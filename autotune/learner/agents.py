@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from autotune.convnet.deepqlearn import (
+    BLOCK,
     GREEDY,
     BlockUniform,
     explore_action,
@@ -32,6 +33,11 @@ class TrainingAgents:
     ``min(1, max(ε_min, 1 − (tw + 1 − burnin)/(total − burnin)))`` — 1 for every burnin > tw + 1:
     uniformly random actions. With a smaller burnin the copies act greedily with probability 1 − ε,
     on the network frozen at that moment, each with its own temporal window.
+
+    ``blind`` (ε = 1 on the agents' own generator, the usual case): each decision is the same two
+    draws, ``rf`` and ``⌊5u⌋``, so the actions are drawn a block ahead (``random_actions``) and the
+    training loop lets the simulator answer them inline (``Simulator.step_single_agents``), the
+    same draws in the same order as deciding one by one.
     """
 
     def __init__(
@@ -53,10 +59,25 @@ class TrainingAgents:
         )
         self.frozen: Any = None
         self._hist: np.ndarray | None = None
+        self.blind = stream is None and self.epsilon >= 1.0  # never greedy: no input is looked at
+        self._actions = np.zeros(0, dtype=np.int64)
+        self.pos = 0  # the next of ``_actions``
+
+    def random_actions(self) -> np.ndarray:
+        """``blind`` agents' next actions, ``_actions[pos:]`` (never empty): each block of ``BLOCK``
+        uniforms is ``BlockUniform``'s next one, read as ``(rf, u)`` pairs, action ``⌊5u⌋``."""
+        if self.pos >= len(self._actions):
+            self._actions = (5.0 * self.rng.random(BLOCK)[1::2]).astype(np.int64)
+            self.pos = 0
+        return self._actions
 
     def act(self, car: int, inputs: np.ndarray) -> int:
         if self.brain.forward_passes <= self.tw:
             return warmup_action(True, self._uniform)  # load-time copies, v2 warm-up: 0, no draw
+        if self.blind:
+            action = int(self.random_actions()[self.pos])
+            self.pos += 1
+            return action
         action = explore_action(self._uniform, self.epsilon)  # always random when ε = 1
         return self._greedy(car, inputs) if action == GREEDY else action
 

@@ -35,6 +35,10 @@ forward/backward over preallocated buffers (``Kernel``; the s₀ and s₁ halves
 through the net as one 2B-row matrix), the greedy action uses numpy views of the same parameter
 memory (cheaper than torch dispatch for one row), scalar draws come from pre-drawn blocks, and
 the simulator is stepped through its public single-world fast path (``Simulator.step_single``).
+Other agents acting at random (ε = 1, the usual v2 case) are answered inside the simulator from
+actions drawn a block ahead (``Simulator.step_single_agents``, the same draws in the same order):
+ten agents cost one Python call per ego decision instead of eleven (network_basic with 10 agents:
+16,900 it/s against 13,000; a linear 270k-iteration adagrad net: 13.8 s against 18.2).
 """
 
 from __future__ import annotations
@@ -331,6 +335,9 @@ def _train(
 
     learn = brain.learn
     step = sim.step_single  # the simulator's public single-world fast path
+    step_agents = sim.step_single_agents
+    blind = agents is not None and agents.blind  # agents acting at random: answered inside the simulator
+    tw = config.temporal_window
     inputs = sim.obs_inputs[0]  # views, updated in place by every step
     reward_arr = sim.obs_reward
     decisions = 0
@@ -343,7 +350,13 @@ def _train(
             if car == 0:
                 action = learn(inputs, float(reward_arr[0]))
                 decisions += 1
-                car = step(action)
+                if blind and brain.forward_passes > tw:  # the agents' decisions up to the ego's next, compiled
+                    todo = agents.random_actions()  # type: ignore[union-attr]
+                    pos = agents.pos  # type: ignore[union-attr]
+                    car, agents.pos = step_agents(action, todo, pos)  # type: ignore[union-attr]
+                    agent_decisions += agents.pos - pos  # type: ignore[union-attr]
+                else:
+                    car = step(action)
                 if decisions >= next_mark:
                     te = time.perf_counter()
                     ce = time.process_time()

@@ -139,6 +139,10 @@ def end_run(
     return False
 
 
+_NO_ACTIONS = np.zeros(0, dtype=np.int64)
+"""No inline answers: every decision goes back to the caller (``advance_batch``, ``advance_one``)."""
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _advance_world(
     cars: np.ndarray,
@@ -155,25 +159,34 @@ def _advance_world(
     scores: np.ndarray,
     ego: np.ndarray,
     run_seeds: np.ndarray,
-) -> None:
+    agent_actions: np.ndarray,
+    pos: int,
+) -> int:
+    """Apply world ``w``'s pending action, then run it to the next decision that ``agent_actions[pos:]`` does not
+    answer (the other cars', in order) and observe it, or to its end. Returns the new ``pos``."""
     obs_car[w] = -1
     if ints[w, I_DONE] != 0:
-        return
+        return pos
     if ints[w, I_DECIDER] >= 0:
         frame_post(cars, grid, fs, ints, cfg, w, actions[w])
     frames = cfg[K_FRAMES]
+    n = agent_actions.shape[0]
     while True:
         if ints[w, I_FRAME] >= frames:
             if _finish_run(fs, ints, cfg, w, scores, ego):
-                return
+                return pos
             _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
         car = frame_pre(cars, grid, fs, ints, mr, cfg, w)
-        if car >= 0:
+        if car > 0 and pos < n:
+            frame_post(cars, grid, fs, ints, cfg, w, agent_actions[pos])
+            pos += 1
+        elif car >= 0:
             observe(cars, grid, cfg, w, car, obs[w])
             obs_car[w] = car
             obs_reward[w] = fs[w, F_LAST_REWARD] if car == 0 else math.nan
-            return
-        frame_post(cars, grid, fs, ints, cfg, w, -1)
+            return pos
+        else:
+            frame_post(cars, grid, fs, ints, cfg, w, -1)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
@@ -194,7 +207,9 @@ def advance_batch(
 ) -> None:
     """Apply each pending world's action, then run every world to its next decision (or its end)."""
     for w in prange(cars.shape[0]):
-        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
+        _advance_world(
+            cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds, _NO_ACTIONS, 0
+        )
 
 
 @njit(cache=True, error_model="numpy")
@@ -215,7 +230,9 @@ def advance_one(
 ) -> None:
     """``advance_batch`` without the thread pool: the cheapest call for one world (training)."""
     for w in range(cars.shape[0]):
-        _advance_world(cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds)
+        _advance_world(
+            cars, grid, fs, ints, mr, cfg, w, actions, obs, obs_car, obs_reward, scores, ego, run_seeds, _NO_ACTIONS, 0
+        )
 
 
 @njit(cache=True, error_model="numpy")
@@ -242,30 +259,9 @@ def advance_one_agents(
     would). Returns the new ``pos``. The frames are ``advance_one``'s, one decision per call
     apart: a training run whose other agents act without looking (spec v2 §8.3, ε = 1) needs no
     trip to Python per agent decision."""
-    w = 0
-    obs_car[w] = -1
-    if ints[w, I_DONE] != 0:
-        return pos
-    if ints[w, I_DECIDER] >= 0:
-        frame_post(cars, grid, fs, ints, cfg, w, actions[w])
-    frames = cfg[K_FRAMES]
-    n = agent_actions.shape[0]
-    while True:
-        if ints[w, I_FRAME] >= frames:
-            if _finish_run(fs, ints, cfg, w, scores, ego):
-                return pos
-            _next_run(cars, fs, ints, mr, cfg, w, run_seeds)
-        car = frame_pre(cars, grid, fs, ints, mr, cfg, w)
-        if car > 0 and pos < n:
-            frame_post(cars, grid, fs, ints, cfg, w, agent_actions[pos])
-            pos += 1
-        elif car >= 0:
-            observe(cars, grid, cfg, w, car, obs[w])
-            obs_car[w] = car
-            obs_reward[w] = fs[w, F_LAST_REWARD] if car == 0 else math.nan
-            return pos
-        else:
-            frame_post(cars, grid, fs, ints, cfg, w, -1)
+    return _advance_world(
+        cars, grid, fs, ints, mr, cfg, 0, actions, obs, obs_car, obs_reward, scores, ego, run_seeds, agent_actions, pos
+    )
 
 
 @njit(error_model="numpy", inline="always")

@@ -21,6 +21,7 @@ from autotune.learner.brain import DeepQLearner
 from autotune.learner.config import TrainConfig
 from autotune.learner.js_learner import OriginalStream
 from autotune.learner.kernel import numpy_forward_ops
+from sim.simulator import Simulator
 
 __all__ = ["TrainingAgents"]
 
@@ -70,6 +71,14 @@ class TrainingAgents:
             self._actions = (5.0 * self.rng.random(BLOCK)[1::2]).astype(np.int64)
             self.pos = 0
         return self._actions
+
+    def step_to_ego(self, sim: Simulator, action: int) -> tuple[int, int]:
+        """Answer the ego's ``action`` and every ``blind`` agent decision after it inside ``sim`` (up to the ego's
+        next decision, the end, or this block's last action); returns (the deciding car or −1, agent decisions)."""
+        actions = self.random_actions()
+        start = self.pos
+        car, self.pos = sim.step_single_agents(action, actions, start)
+        return car, self.pos - start
 
     def act(self, car: int, inputs: np.ndarray) -> int:
         if self.brain.forward_passes <= self.tw:

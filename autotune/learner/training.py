@@ -335,7 +335,6 @@ def _train(
 
     learn = brain.learn
     step = sim.step_single  # the simulator's public single-world fast path
-    step_agents = sim.step_single_agents
     blind = agents is not None and agents.blind  # agents acting at random: answered inside the simulator
     tw = config.temporal_window
     inputs = sim.obs_inputs[0]  # views, updated in place by every step
@@ -351,10 +350,8 @@ def _train(
                 action = learn(inputs, float(reward_arr[0]))
                 decisions += 1
                 if blind and brain.forward_passes > tw:  # the agents' decisions up to the ego's next, compiled
-                    todo = agents.random_actions()  # type: ignore[union-attr]
-                    pos = agents.pos  # type: ignore[union-attr]
-                    car, agents.pos = step_agents(action, todo, pos)  # type: ignore[union-attr]
-                    agent_decisions += agents.pos - pos  # type: ignore[union-attr]
+                    car, answered = agents.step_to_ego(sim, action)  # type: ignore[union-attr]
+                    agent_decisions += answered
                 else:
                     car = step(action)
                 if decisions >= next_mark:

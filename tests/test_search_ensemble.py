@@ -684,3 +684,62 @@ def test_seed_soup_leader_is_checked() -> None:
         _spec(seed_soups=[2], seed_soup_leader=True)
     with pytest.raises(SpecError, match=r"\[study\] seed_soup_leader: must be true or false, got 1"):
         _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_leader=1)
+
+
+def test_best_net_configs_are_the_configurations_whose_seeds_make_the_best_net() -> None:
+    attrs: list[dict[str, Any]] = [{}, {}, {}, {keys.RACE_OF: 0}, {keys.RACE_OF: 2}, {keys.RACE_OF: 2}]
+    attrs.append({keys.SOUP_OF: [3, 4, 5], keys.SEED_SOUP_OF: 0, keys.REFINE_OF: {"trial": 0, "budget": None}})
+    attrs.append({keys.REFINE_OF: {"trial": 6, "budget": None}})
+    attrs.append({keys.SOUP_OF: [7, 7], keys.REFINE_OF: {"trial": 6, "budget": None}})
+    assert ensemble.best_net_configs(6, attrs) == [0, 2]  # a family soup: two configurations
+    assert ensemble.best_net_configs(4, attrs) == [2]  # a fresh seed: its configuration
+    assert ensemble.best_net_configs(1, attrs) == [1]
+    assert ensemble.best_net_configs(7, attrs) == [] == ensemble.best_net_configs(8, attrs)  # trained on from a net
+
+
+def test_the_best_nets_configurations_take_every_other_run_of_the_refinement(tmp_path: Path) -> None:
+    """With ``seed_soup_best`` the configurations whose seeds make the best net take turns with the rest of the
+    refinement's runs (here a new linear configuration's probe seeds), the best of them by mean over its nets first.
+    The best net is a soup of configurations 1 and 2 (twins by their rate; 2's nets average higher), so
+    configuration 0 gets no turn though it leads by mean and has the best fresh net; once a seed of 1 beats the
+    soup, 1 alone takes them."""
+    spec = _spec(n_trials=80, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=8,
+                 seed_soup_reach=2.0, seed_soup_best=True).with_overrides(
+                     storage=str(tmp_path / "best.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    net = _upload(storages, study, _linear_text(0))
+    base = LINEAR.replace(train_iterations=1200)
+    configs = [
+        base.replace(patches_ahead=2),
+        base.replace(patches_ahead=3),
+        base.replace(patches_ahead=3, learning_rate=base.learning_rate * 2),
+        base.replace(patches_ahead=5),
+    ]
+    rows: list[tuple[float, int, dict[str, Any]]] = [(value, i, {}) for i, value in enumerate((75.0, 74.2, 74.6, 74.5))]
+    for owner, score in ((0, 74.9), (1, 73.5), (2, 74.0)):  # means 74.92, 73.64, 74.12
+        rows += [(score, owner, {keys.RACE_OF: owner, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True}) for i in range(4)]
+    soup = {keys.SOUP_OF: [1, 2, 12], keys.SEED_SOUP_OF: 1, keys.REFINE_OF: {"trial": 2, "budget": None}}
+    rows.append((75.3, 2, soup))  # trials 1 (configuration 1), 2 and 12 (configuration 2): the best net
+    for value, which, attrs in rows:
+        attrs = {keys.CONFIG: configs[which].to_mapping(), keys.ARTIFACT_NET_JSON: net, **attrs}
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
+                                                  user_attrs=attrs))  # fmt: skip
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    runs = []
+    for i in range(6):
+        assert driver._launch_refine(0)  # noqa: SLF001
+        run = driver._running.pop(0).trial  # noqa: SLF001
+        attrs = study.trials[run.number].user_attrs
+        runs.append((attrs[keys.RACE_OF], attrs[keys.RACE_SEED], bool(attrs.get(keys.SEED_LEADER_RUN))))
+        study.tell(run, 75.5 if i == 2 else 70.0)  # the third run, configuration 1's, beats the soup
+    assert runs == [(2, 4, True), (3, 0, False), (1, 4, True), (3, 1, False), (1, 5, True), (3, 2, False)]
+
+
+def test_seed_soup_best_is_checked() -> None:
+    assert "seed_soup_best" not in _spec().to_dict()["study"]
+    spec = _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best=True)
+    assert spec.study.seed_soup_best and spec.to_dict()["study"]["seed_soup_best"] is True
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_best: .*seed_soup_runs = 0.*set seed_soup_runs"):
+        _spec(seed_soups=[2], seed_soup_best=True)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_best: must be true or false, got 'yes'"):
+        _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best="yes")

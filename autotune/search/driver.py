@@ -817,7 +817,8 @@ class Driver:
         With ``[study] seed_soup_leader`` the configuration that leads by mean over its fresh seeds takes every other
         run (``_leader_turn``): on a crowd-prior hour (seed 2) the stream of neighbours' 4 probe seeds held the
         worker until the race, so no configuration had more than 4 seeds before it, and the race winner (75.22 over
-        22 seeds, souped to 75.61) got its seeds only in the last quarter."""
+        22 seeds, souped to 75.61) got its seeds only in the last quarter. With ``[study] seed_soup_best`` those
+        turns go to the configurations whose nets make the best net (``ensemble.best_net_configs``) first."""
         assert self.study is not None
         st = self.spec.study
         if st.refine_share <= 0.0 or (self._race_window() and not self._race_over):
@@ -826,7 +827,7 @@ class Driver:
             return False
         if not self._refine_open():
             return False
-        if not st.seed_soup_leader:
+        if not (st.seed_soup_leader or st.seed_soup_best):
             return self._launch_refine_run(slot)
         leader_first = self._leader_turn()  # the leader and the rest take turns; either takes the other's idle run
         if leader_first and self._launch_leader_seed(slot):
@@ -1027,6 +1028,10 @@ class Driver:
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)
         results, launched = self._race_results()
+        if st.seed_soup_best:
+            mine = self._best_net_seed(trials, results, launched)
+            if mine is not None or not st.seed_soup_leader:
+                return mine
         candidates, configs, most = [], {}, {}
         for standing in racing.provisional_standings(results):
             entry = race_entry(trials[standing.number], self.spec.race_min_budget)
@@ -1038,6 +1043,34 @@ class Driver:
                     continue
                 most[standing.number] = ensemble.STACK_SEED_RUNS
             candidates.append(racing.Entrant(standing.number, standing.mean, racing.config_key(config)))
+        run = ensemble.next_seed_run(candidates, launched, {}, None, 0.0, st.seed_soup_runs, most)
+        return None if run is None else (run, configs[run.race_of])
+
+    def _best_net_seed(
+        self, trials: list[FrozenTrial], results: Mapping[tuple[int, int], float | None], launched: set[tuple[int, int]]
+    ) -> tuple[racing.RaceRun, dict[str, Any]] | None:
+        """``_seed_leader`` with ``[study] seed_soup_best``: the next seed run of the configurations whose nets make
+        the study's best net (``ensemble.best_net_configs``; those ``_launch_seed_run`` may seed, under the same
+        caps), the best first by mean over its race entry's score and its fresh seeds' (``results``), or None."""
+        st = self.spec.study
+        ranked = [(net_rank(score, budget, t.number), t.number) for t in trials
+                  for score, budget in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)
+                  if math.isfinite(score)]  # fmt: skip
+        if not ranked:
+            return None
+        number = max(ranked)[1]
+        candidates, configs, most = [], {}, {}
+        for owner in ensemble.best_net_configs(number, [t.user_attrs for t in trials]):
+            entry = race_entry(trials[owner], self.spec.race_min_budget)
+            if entry is None:
+                continue
+            config = configs[owner] = entry[2]
+            if not ensemble.is_linear(config):
+                if not (st.seed_ensembles and stack.stackable(parse_layers(config.get("layers", "")))):
+                    continue
+                most[owner] = ensemble.STACK_SEED_RUNS
+            scores = [entry[0], *(s for (n, _i), s in results.items() if n == owner and s is not None)]
+            candidates.append(racing.Entrant(owner, sum(scores) / len(scores), racing.config_key(config)))
         run = ensemble.next_seed_run(candidates, launched, {}, None, 0.0, st.seed_soup_runs, most)
         return None if run is None else (run, configs[run.race_of])
 

@@ -51,7 +51,7 @@ from sim.config import ConfigError
 
 __all__ = [
     "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "STACK_SPAN", "is_linear", "family_key", "seed_nets",
-    "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run",
+    "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run", "best_net_configs",
 ]  # fmt: skip
 
 STACK_SEED_RUNS = 12
@@ -278,3 +278,22 @@ def next_seed_run(
                 continue
         return RaceRun(e.number, next(i for i in itertools.count() if i not in mine))
     return None
+
+
+def best_net_configs(number: int, attrs: Sequence[Mapping[str, Any]]) -> list[int]:
+    """The configurations whose fresh-seed nets make the net of trial ``number`` (``attrs``: every trial's user
+    attrs, by number), ascending, each its selecting trial's number: a seed soup's ingredients' (a family soup's can
+    be several), a fresh training's own; none for a refinement run or its soup (trained on from other nets).
+
+    ``[study] seed_soup_best`` gives them seeds: their next seeds are the next greedy steps' candidates for the best
+    net itself. A crowd-prior hour's (study seed 2) best net was a family soup of 6 nets from 4 linear
+    configurations (75.64 at 15.6 min); they had 1-5 seeds each (their probe seeds, while each new neighbour in
+    reach took its own), and nothing beat it in the 44 minutes left."""
+    mine = attrs[number]
+    if keys.SOUP_OF in mine and keys.SEED_SOUP_OF in mine:
+        numbers = [int(n) for n in mine[keys.SOUP_OF]]
+    elif keys.REFINE_OF in mine:
+        return []
+    else:
+        numbers = [number]
+    return sorted({int(attrs[n].get(keys.RACE_OF, n)) for n in numbers})

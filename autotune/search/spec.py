@@ -8,7 +8,8 @@ Five tables, every key optional unless said otherwise::
                   intensify_share, intensify_runs, refine_share, refine_iterations, refine_learning_rate,
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
-                  linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours, seed_soup_leader
+                  linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours, seed_soup_leader,
+                  seed_soup_best
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -314,6 +315,10 @@ class StudySection:
     """With seed_soup_runs: the configuration that leads by mean over its fresh seeds (3 or more) takes every other
     run of the refinement's worker, and any run it would leave idle, up to its seed_soup_runs (12 with hidden
     layers); false: seeds go by level alone (each new linear configuration's probe seeds first)."""
+    seed_soup_best: bool = False
+    """With seed_soup_runs: the configurations whose nets make the study's best net (a seed soup's ingredients, or a
+    fresh training's own) take every other run of the refinement's worker, the best of them by mean over its nets
+    first, up to their seed_soup_runs; with seed_soup_leader too, the leader by mean when none of them can take one."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -525,7 +530,7 @@ class StudySpec:
         if twins:  # likewise
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
         optional = ("linear_twin_span", "seed_soup_families", "seed_ensembles", "seed_soup_swap_span",
-                    "linear_neighbours", "seed_soup_leader")  # fmt: skip
+                    "linear_neighbours", "seed_soup_leader", "seed_soup_best")  # fmt: skip
         for key in optional:  # likewise
             if not study[key]:
                 del study[key]
@@ -828,12 +833,19 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if leader and not seed_runs:
         raise where.error("seed_soup_leader", "gives the leader by mean more fresh seeds, but seed_soup_runs = 0",
                           "set seed_soup_runs (e.g. 64), or remove seed_soup_leader")  # fmt: skip
+    best_seeds = table.get("seed_soup_best", d.seed_soup_best)
+    if not isinstance(best_seeds, bool):
+        raise where.error("seed_soup_best", f"must be true or false, got {best_seeds!r}", "e.g. seed_soup_best = true")
+    if best_seeds and not seed_runs:
+        raise where.error("seed_soup_best", "gives the best net's configurations more fresh seeds, but seed_soup_runs "
+                          "= 0", "set seed_soup_runs (e.g. 64), or remove seed_soup_best")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
+        best_seeds,
     )  # fmt: skip
 
 

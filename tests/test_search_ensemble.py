@@ -697,14 +697,16 @@ def test_best_net_configs_are_the_configurations_whose_seeds_make_the_best_net()
     assert ensemble.best_net_configs(7, attrs) == [] == ensemble.best_net_configs(8, attrs)  # trained on from a net
 
 
-def test_the_best_nets_configurations_take_every_other_run_of_the_refinement(tmp_path: Path) -> None:
+@pytest.mark.parametrize("leader", [False, True])
+def test_the_best_nets_configurations_take_every_other_run_of_the_refinement(tmp_path: Path, leader: bool) -> None:
     """With ``seed_soup_best`` the configurations whose seeds make the best net take turns with the rest of the
     refinement's runs (here a new linear configuration's probe seeds), the best of them by mean over its nets first.
     The best net is a soup of configurations 1 and 2 (twins by their rate; 2's nets average higher), so
     configuration 0 gets no turn though it leads by mean and has the best fresh net; once a seed of 1 beats the
-    soup, 1 alone takes them."""
-    spec = _spec(n_trials=80, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=8,
-                 seed_soup_reach=2.0, seed_soup_best=True).with_overrides(
+    soup, 1 alone takes them. With ``seed_soup_leader`` too (and 5 seeds a configuration), the leader by mean (0)
+    takes the turn once the best net's configurations have all their seeds."""
+    spec = _spec(n_trials=80, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=5 if leader else 8,
+                 seed_soup_reach=2.0, seed_soup_best=True, seed_soup_leader=leader).with_overrides(
                      storage=str(tmp_path / "best.log"), workers=2)  # fmt: skip
     driver, study, storages, dists, params = _driver_on_journal(spec)
     net = _upload(storages, study, _linear_text(0))
@@ -732,7 +734,8 @@ def test_the_best_nets_configurations_take_every_other_run_of_the_refinement(tmp
         attrs = study.trials[run.number].user_attrs
         runs.append((attrs[keys.RACE_OF], attrs[keys.RACE_SEED], bool(attrs.get(keys.SEED_LEADER_RUN))))
         study.tell(run, 75.5 if i == 2 else 70.0)  # the third run, configuration 1's, beats the soup
-    assert runs == [(2, 4, True), (3, 0, False), (1, 4, True), (3, 1, False), (1, 5, True), (3, 2, False)]
+    fifth = (0, 4, True) if leader else (1, 5, True)
+    assert runs == [(2, 4, True), (3, 0, False), (1, 4, True), (3, 1, False), fifth, (3, 2, False)]
 
 
 def test_seed_soup_best_is_checked() -> None:

@@ -1023,7 +1023,8 @@ class Driver:
         """(its next seed run, its race entry's config) of the best configuration by mean over its fresh seeds
         (``racing.provisional_standings``) that may take more (``_launch_seed_run``'s kinds, under their cap:
         ``seed_soup_runs``, or ``ensemble.STACK_SEED_RUNS`` with hidden layers; ``ensemble.next_seed_run`` ranked by
-        that mean, with no reach), or None."""
+        that mean, with no reach), or None. With ``[study] seed_soup_best`` the best net's configurations first
+        (``_best_net_seed``), and only they unless ``seed_soup_leader`` is on too."""
         assert self.study is not None
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)
@@ -1032,17 +1033,32 @@ class Driver:
             mine = self._best_net_seed(trials, results, launched)
             if mine is not None or not st.seed_soup_leader:
                 return mine
+        means = {s.number: s.mean for s in racing.provisional_standings(results)}
+        return self._next_seed_of(trials, list(means), lambda number, _score: means[number], launched)
+
+    def _next_seed_of(
+        self,
+        trials: list[FrozenTrial],
+        numbers: Sequence[int],
+        mean: Callable[[int, float], float],
+        launched: set[tuple[int, int]],
+    ) -> tuple[racing.RaceRun, dict[str, Any]] | None:
+        """(next seed run, race entry's config) of the configurations ``numbers`` (selecting trials), the best first
+        by ``mean`` (number, race entry's score → mean), the first that may take more seeds: a linear one, or with
+        ``[study] seed_ensembles`` one whose hidden layers stack, under ``seed_soup_runs`` (``ensemble.
+        STACK_SEED_RUNS`` with hidden layers; ``ensemble.next_seed_run`` with no reach); or None."""
+        st = self.spec.study
         candidates, configs, most = [], {}, {}
-        for standing in racing.provisional_standings(results):
-            entry = race_entry(trials[standing.number], self.spec.race_min_budget)
+        for number in numbers:
+            entry = race_entry(trials[number], self.spec.race_min_budget)
             if entry is None:
                 continue
-            config = configs[standing.number] = entry[2]
+            config = configs[number] = entry[2]
             if not ensemble.is_linear(config):
                 if not (st.seed_ensembles and stack.stackable(parse_layers(config.get("layers", "")))):
                     continue
-                most[standing.number] = ensemble.STACK_SEED_RUNS
-            candidates.append(racing.Entrant(standing.number, standing.mean, racing.config_key(config)))
+                most[number] = ensemble.STACK_SEED_RUNS
+            candidates.append(racing.Entrant(number, mean(number, entry[0]), racing.config_key(config)))
         run = ensemble.next_seed_run(candidates, launched, {}, None, 0.0, st.seed_soup_runs, most)
         return None if run is None else (run, configs[run.race_of])
 
@@ -1052,27 +1068,19 @@ class Driver:
         """``_seed_leader`` with ``[study] seed_soup_best``: the next seed run of the configurations whose nets make
         the study's best net (``ensemble.best_net_configs``; those ``_launch_seed_run`` may seed, under the same
         caps), the best first by mean over its race entry's score and its fresh seeds' (``results``), or None."""
-        st = self.spec.study
         ranked = [(net_rank(score, budget, t.number), t.number) for t in trials
                   for score, budget in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)
                   if math.isfinite(score)]  # fmt: skip
         if not ranked:
             return None
         number = max(ranked)[1]
-        candidates, configs, most = [], {}, {}
-        for owner in ensemble.best_net_configs(number, [t.user_attrs for t in trials]):
-            entry = race_entry(trials[owner], self.spec.race_min_budget)
-            if entry is None:
-                continue
-            config = configs[owner] = entry[2]
-            if not ensemble.is_linear(config):
-                if not (st.seed_ensembles and stack.stackable(parse_layers(config.get("layers", "")))):
-                    continue
-                most[owner] = ensemble.STACK_SEED_RUNS
-            scores = [entry[0], *(s for (n, _i), s in results.items() if n == owner and s is not None)]
-            candidates.append(racing.Entrant(owner, sum(scores) / len(scores), racing.config_key(config)))
-        run = ensemble.next_seed_run(candidates, launched, {}, None, 0.0, st.seed_soup_runs, most)
-        return None if run is None else (run, configs[run.race_of])
+
+        def mean(owner: int, score: float) -> float:
+            scores = [score, *(s for (n, _i), s in results.items() if n == owner and s is not None)]
+            return sum(scores) / len(scores)
+
+        owners = ensemble.best_net_configs(number, [t.user_attrs for t in trials])
+        return self._next_seed_of(trials, owners, mean, launched)
 
     def _launch_leader_seed(self, slot: int) -> bool:
         """Start the next fresh seed of ``_seed_leader`` on ``slot``, a seed run like ``_launch_seed_run``'s; False

@@ -765,16 +765,11 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if not soups and not seed_soups and span != d.refine_soup_span:
         raise where.error("refine_soup_span", "sets the weight soups' ingredients, but refine_soups and seed_soups "
                           "are empty", "set refine_soups (e.g. [2, 4]), or remove refine_soup_span")  # fmt: skip
-    greedy = table.get("seed_soup_greedy", d.seed_soup_greedy)
-    if not isinstance(greedy, bool):
-        raise where.error("seed_soup_greedy", f"must be true or false, got {greedy!r}", "e.g. seed_soup_greedy = true")
+    greedy = _flag(table, "seed_soup_greedy", d.seed_soup_greedy, where)
     if greedy and not seed_soups:
         raise where.error("seed_soup_greedy", "grows the seed soups, but seed_soups is empty",
                           "set seed_soups (e.g. [2, 3]), or remove seed_soup_greedy")  # fmt: skip
-    families = table.get("seed_soup_families", d.seed_soup_families)
-    if not isinstance(families, bool):
-        raise where.error("seed_soup_families", f"must be true or false, got {families!r}",
-                          "e.g. seed_soup_families = true")  # fmt: skip
+    families = _flag(table, "seed_soup_families", d.seed_soup_families, where)
     if families and not seed_soups:
         raise where.error("seed_soup_families", "soups linear configurations together, but seed_soups is empty",
                           "set seed_soups (e.g. [2, 3]), or remove seed_soup_families")  # fmt: skip
@@ -796,10 +791,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         if refine <= 0.0 and value != getattr(d, key):  # (a spec written out whole carries the defaults)
             raise where.error(key, "sets the refinement runs, but refine_share = 0",
                               f"set refine_share (e.g. 0.5), or remove {key}")  # fmt: skip
-    every_draw = table.get("balance_every_draw", d.balance_every_draw)
-    if not isinstance(every_draw, bool):
-        raise where.error("balance_every_draw", f"must be true or false, got {every_draw!r}",
-                          "e.g. balance_every_draw = true")  # fmt: skip
+    every_draw = _flag(table, "balance_every_draw", d.balance_every_draw, where)
     if every_draw and not balance:
         raise where.error("balance_every_draw", "conditions the draws on the balanced parameters, but balance is "
                           "empty", 'set balance (e.g. ["method"]), or remove balance_every_draw')  # fmt: skip
@@ -809,9 +801,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if twin_span and not twins:
         raise where.error("linear_twin_span", "sets which configurations get linear twins, but linear_twins is empty",
                           "set linear_twins (e.g. { adagrad = [3.0] }), or remove linear_twin_span")  # fmt: skip
-    stacks = table.get("seed_ensembles", d.seed_ensembles)
-    if not isinstance(stacks, bool):
-        raise where.error("seed_ensembles", f"must be true or false, got {stacks!r}", "e.g. seed_ensembles = true")
+    stacks = _flag(table, "seed_ensembles", d.seed_ensembles, where)
     if stacks and not seed_soups:
         raise where.error("seed_ensembles", "stacks the seeds of configurations with hidden layers, but seed_soups is "
                           "empty", "set seed_soups (e.g. [2, 3, 4]), or remove seed_ensembles")  # fmt: skip
@@ -820,22 +810,15 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if swap_span and not greedy:
         raise where.error("seed_soup_swap_span", "swaps the greedy seed soups' ingredients, but seed_soup_greedy is "
                           "off", "set seed_soup_greedy = true, or remove seed_soup_swap_span")  # fmt: skip
-    neighbours = table.get("linear_neighbours", d.linear_neighbours)
-    if not isinstance(neighbours, bool):
-        raise where.error("linear_neighbours", f"must be true or false, got {neighbours!r}",
-                          "e.g. linear_neighbours = true")  # fmt: skip
+    neighbours = _flag(table, "linear_neighbours", d.linear_neighbours, where)
     if neighbours and not seed_soups:
         raise where.error("linear_neighbours", "retries the configuration of the best seed soup, but seed_soups is "
                           "empty", "set seed_soups (e.g. [2, 3, 4]), or remove linear_neighbours")  # fmt: skip
-    leader = table.get("seed_soup_leader", d.seed_soup_leader)
-    if not isinstance(leader, bool):
-        raise where.error("seed_soup_leader", f"must be true or false, got {leader!r}", "e.g. seed_soup_leader = true")
+    leader = _flag(table, "seed_soup_leader", d.seed_soup_leader, where)
     if leader and not seed_runs:
         raise where.error("seed_soup_leader", "gives the leader by mean more fresh seeds, but seed_soup_runs = 0",
                           "set seed_soup_runs (e.g. 64), or remove seed_soup_leader")  # fmt: skip
-    best_seeds = table.get("seed_soup_best", d.seed_soup_best)
-    if not isinstance(best_seeds, bool):
-        raise where.error("seed_soup_best", f"must be true or false, got {best_seeds!r}", "e.g. seed_soup_best = true")
+    best_seeds = _flag(table, "seed_soup_best", d.seed_soup_best, where)
     if best_seeds and not seed_runs:
         raise where.error("seed_soup_best", "gives the best net's configurations more fresh seeds, but seed_soup_runs "
                           "= 0", "set seed_soup_runs (e.g. 64), or remove seed_soup_best")  # fmt: skip
@@ -1340,6 +1323,14 @@ def _hint(key: str, valid: tuple[str, ...] | list[str]) -> str:
 
 def _one_line(text: str) -> str:
     return " ".join(text.split())
+
+
+def _flag(table: Mapping[str, Any], key: str, default: bool, where: _Where) -> bool:
+    """[study] ``key``, a true/false switch (``default`` when absent)."""
+    value = table.get(key, default)
+    if not isinstance(value, bool):
+        raise where.error(key, f"must be true or false, got {value!r}", f"e.g. {key} = true")
+    return value
 
 
 def _int(value: Any, what: str, lo: int, hi: int) -> int:

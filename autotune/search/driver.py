@@ -1068,12 +1068,10 @@ class Driver:
         """``_seed_leader`` with ``[study] seed_soup_best``: the next seed run of the configurations whose nets make
         the study's best net (``ensemble.best_net_configs``; those ``_launch_seed_run`` may seed, under the same
         caps), the best first by mean over its race entry's score and its fresh seeds' (``results``), or None."""
-        ranked = [(net_rank(score, budget, t.number), t.number) for t in trials
-                  for score, budget in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)
-                  if math.isfinite(score)]  # fmt: skip
-        if not ranked:
+        best = _best_net(trials)
+        if best is None:
             return None
-        number = max(ranked)[1]
+        number = best[1]
 
         def mean(owner: int, score: float) -> float:
             scores = [score, *(s for (n, _i), s in results.items() if n == owner and s is not None)]
@@ -1688,12 +1686,24 @@ def race_entry(t: FrozenTrial, min_budget: int = 0) -> tuple[float, int | None, 
         return None
 
 
+def _best_net(trials: Sequence[FrozenTrial], fresh: bool = False) -> tuple[float, int] | None:
+    """(score, trial number) of the study's best single net (``records.best_net``'s, over ``scored_nets``, ranked
+    by ``net_rank``); None before any. ``fresh``: of fresh trainings only (no refinement run, soup or stack: nothing
+    trained on or from other nets)."""
+    found = [(net_rank(score, budget, t.number), t.number) for t in trials
+             if not (fresh and keys.REFINE_OF in t.user_attrs)
+             for score, budget in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)
+             if math.isfinite(score)]  # fmt: skip
+    if not found:
+        return None
+    rank, number = max(found)
+    return rank[0], number
+
+
 def _best_score(trials: Sequence[FrozenTrial], fresh: bool = False) -> float | None:
-    """The study's best single net's score (``records.best_net``'s, over ``scored_nets``); None before any.
-    ``fresh``: of fresh trainings only (no refinement run, soup or stack: nothing trained on or from other nets)."""
-    found = [score for t in trials if not (fresh and keys.REFINE_OF in t.user_attrs)
-             for score, _b in scored_nets(t.user_attrs, t.value, t.state == TrialState.COMPLETE)]  # fmt: skip
-    return max((x for x in found if math.isfinite(x)), default=None)
+    """The study's best single net's score (``_best_net``); None before any."""
+    best = _best_net(trials, fresh)
+    return None if best is None else best[0]
 
 
 def _original(t: FrozenTrial) -> bool:

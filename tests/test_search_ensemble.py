@@ -746,3 +746,73 @@ def test_seed_soup_best_is_checked() -> None:
         _spec(seed_soups=[2], seed_soup_best=True)
     with pytest.raises(SpecError, match=r"\[study\] seed_soup_best: must be true or false, got 'yes'"):
         _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best="yes")
+
+
+def test_contender_configs_are_each_familys_best_nets_configurations_fewest_seeds_first() -> None:
+    """Every family whose best net is at the floor or above, by the configurations that make that net: a family soup
+    by its ingredients' configurations, a fresh seed by its own; refinement runs, nets below the floor and the
+    configurations skipped count for nothing; the family with fewer seeds first, then the higher best net."""
+    base = LINEAR.replace(train_iterations=1200)
+    a, b, c = (base.replace(patches_ahead=k).to_mapping() for k in (2, 3, 4))
+    a2 = base.replace(patches_ahead=2, learning_rate=base.learning_rate * 2).to_mapping()  # a's twin: one family
+    attrs: list[dict[str, Any]] = [
+        {keys.CONFIG: a}, {keys.CONFIG: a2}, {keys.CONFIG: b}, {keys.CONFIG: c},
+        {keys.CONFIG: a, keys.RACE_OF: 0}, {keys.CONFIG: b, keys.RACE_OF: 2},
+        {keys.CONFIG: a, keys.SOUP_OF: [1, 4], keys.SEED_SOUP_OF: 0, keys.REFINE_OF: {"trial": 4, "budget": None}},
+        {keys.CONFIG: c, keys.REFINE_OF: {"trial": 3, "budget": None}},
+    ]  # fmt: skip
+    values: list[float | None] = [75.0, 74.0, 74.9, 73.0, 75.1, 75.2, 75.6, 76.0]
+    assert ensemble.contender_configs(attrs, values, 75.0, {}) == [[0, 1], [2]]  # a's soup 75.6, then b's seed 75.2
+    assert ensemble.contender_configs(attrs, values, 75.0, {2: 5, 0: 3, 1: 3}) == [[2], [0, 1]]  # 5 seeds before 6
+    assert ensemble.contender_configs(attrs, values, 75.0, {}, skip=[0, 1]) == [[2]]
+    assert ensemble.contender_configs(attrs, values, 75.3, {}) == [[0, 1]]  # the refinement run (76.0) makes none
+    values[6] = None  # the soup not COMPLETE: a's best is its seed 75.1 (trial 4, configuration 0's)
+    assert ensemble.contender_configs(attrs, values, 75.0, {}) == [[2], [0]]
+
+
+def test_other_families_near_the_best_share_the_best_nets_turns(tmp_path: Path) -> None:
+    """With ``seed_soup_best_span`` the best net's configurations and the other families whose best net is within
+    the span take the seed turns in turn (the rest of the refinement's runs between them): configuration 0 makes
+    the best net (75.3); configurations 1 (75.1, 1 seed) and 2 (a seed at 75.2, 4 seeds) are within 0.25, the one
+    with fewer seeds first; configuration 3 (74.9) is not. Without the span only configuration 0 takes the turns."""
+    got = {}
+    for span in (0.0, 0.25):
+        spec = _spec(n_trials=80, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=8,
+                     seed_soup_reach=2.0, seed_soup_best=True, seed_soup_best_span=span).with_overrides(
+                         storage=str(tmp_path / f"{span}.log"), workers=2)  # fmt: skip
+        driver, study, storages, dists, params = _driver_on_journal(spec)
+        net = _upload(storages, study, _linear_text(0))
+        configs = [LINEAR.replace(train_iterations=1200, patches_ahead=2 + i) for i in range(5)]
+        rows: list[tuple[float, int, dict[str, Any]]] = [
+            (value, i, {}) for i, value in enumerate((75.3, 75.1, 74.0, 74.9, 74.5))
+        ]
+        for owner, scores in ((0, (74.0,) * 4), (1, (74.0,)), (2, (75.2, 74.0, 74.0, 74.0))):
+            rows += [(score, owner, {keys.RACE_OF: owner, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True})
+                     for i, score in enumerate(scores)]  # fmt: skip
+        for value, which, attrs in rows:
+            attrs = {keys.CONFIG: configs[which].to_mapping(), keys.ARTIFACT_NET_JSON: net, **attrs}
+            study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
+                                                      user_attrs=attrs))  # fmt: skip
+        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        runs = []
+        for _ in range(8):
+            assert driver._launch_refine(0)  # noqa: SLF001
+            run = driver._running.pop(0).trial  # noqa: SLF001
+            attrs = study.trials[run.number].user_attrs
+            runs.append((attrs[keys.RACE_OF], bool(attrs.get(keys.SEED_LEADER_RUN))))
+            study.tell(run, 70.0)
+        got[span] = [owner for owner, turn in runs if turn]
+    assert got[0.0] == [0, 0, 0, 0]
+    turns = got[0.25]
+    assert turns[0::2] == [0, 0] and turns[1] == 1  # 1 (1 seed) before 2 (4 seeds, a better net): fewest first
+    assert set(turns[1::2]) <= {1, 2}  # the rest's probe seeds also count: either may come next, never 3 or 4
+
+
+def test_seed_soup_best_span_is_checked() -> None:
+    assert "seed_soup_best_span" not in _spec().to_dict()["study"]
+    spec = _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best=True, seed_soup_best_span=0.25)
+    assert spec.study.seed_soup_best_span == 0.25 and spec.to_dict()["study"]["seed_soup_best_span"] == 0.25
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_best_span: .*seed_soup_best is off.*set seed_soup_best"):
+        _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best_span=0.25)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_best_span: must be a number"):
+        _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best=True, seed_soup_best_span="wide")

@@ -50,6 +50,7 @@ its trial was enqueued with.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import importlib.util
 import math
@@ -1077,8 +1078,30 @@ class Driver:
             scores = [score, *(s for (n, _i), s in results.items() if n == owner and s is not None)]
             return sum(scores) / len(scores)
 
-        owners = ensemble.best_net_configs(number, [t.user_attrs for t in trials])
-        return self._next_seed_of(trials, owners, mean, launched)
+        attrs = [t.user_attrs for t in trials]
+        owners = ensemble.best_net_configs(number, attrs)
+        span = self.spec.study.seed_soup_best_span
+        if span <= 0.0:
+            return self._next_seed_of(trials, owners, mean, launched)
+        values = [t.value if t.state == TrialState.COMPLETE else None for t in trials]
+        seeds = collections.Counter(n for n, _i in launched)
+        others = ensemble.contender_configs(attrs, values, best[0] - span, seeds, skip=owners)
+        last = self._last_turn_of()
+        order = [*others, owners] if last is not None and last in owners else [owners, *others]
+        for group in order:  # the best net's family and the others take turns, the others fewest seeds first
+            run = self._next_seed_of(trials, group, mean, launched)
+            if run is not None:
+                return run
+        return None
+
+    def _last_turn_of(self) -> int | None:
+        """The configuration (``race_of``) of the refinement's last seed turn (``keys.SEED_LEADER_RUN``), or None."""
+        assert self.study is not None
+        last = None
+        for t in self.study.get_trials(deepcopy=False):
+            if t.user_attrs.get(keys.SEED_LEADER_RUN) and keys.RETRY_OF not in t.user_attrs:
+                last = t.user_attrs.get(keys.RACE_OF)
+        return None if last is None else int(last)
 
     def _launch_leader_seed(self, slot: int) -> bool:
         """Start the next fresh seed of ``_seed_leader`` on ``slot``, a seed run like ``_launch_seed_run``'s; False

@@ -51,7 +51,7 @@ from sim.config import ConfigError
 
 __all__ = [
     "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "STACK_SPAN", "is_linear", "family_key", "seed_nets",
-    "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run", "best_net_configs",
+    "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run", "best_net_configs", "contender_configs",
 ]  # fmt: skip
 
 STACK_SEED_RUNS = 12
@@ -297,3 +297,37 @@ def best_net_configs(number: int, attrs: Sequence[Mapping[str, Any]]) -> list[in
     else:
         numbers = [number]
     return sorted({int(attrs[n].get(keys.RACE_OF, n)) for n in numbers})
+
+
+def contender_configs(
+    attrs: Sequence[Mapping[str, Any]],
+    values: Sequence[float | None],
+    floor: float,
+    seeds: Mapping[int, int],
+    skip: Iterable[int] = (),
+) -> list[list[int]]:
+    """For each family (``family_key``; a configuration with hidden layers is its own) whose best net scores
+    ``floor`` or more, the configurations whose seeds make that net (``best_net_configs``: a fresh training or a
+    seed soup; ``attrs``/``values``: every trial's user attrs and COMPLETE value, None otherwise, by number), those
+    in ``skip`` left out; the family with the fewest fresh seeds (``seeds``: runs launched per configuration) first,
+    then the higher best net.
+
+    ``[study] seed_soup_best_span`` gives them the best net's family's turns every other time: a family's soups
+    gain little past ~10-20 seeds (in four crowd-prior hours the best family's soups stopped at 75.61-75.74 with 46
+    to 88 nets, where runners-up reached 75.57-75.61 with 8-11), and the official 500 runs favour one family's
+    policy over another's by a few tenths (two soups' official scores sat 0.30 above and 0.15 below their scores on
+    unseen runs), so near the top a second family's soup is the likelier next best net."""
+    best: dict[Any, tuple[float, int, list[int]]] = {}
+    for number, value in enumerate(values):
+        if value is None or not math.isfinite(value) or value < floor:
+            continue
+        owners = best_net_configs(number, attrs)
+        if not owners:
+            continue
+        key = family_key(attrs[number].get(keys.CONFIG)) or ("hidden", *owners)
+        if key not in best or (value, -number) > (best[key][0], -best[key][1]):
+            best[key] = (float(value), number, owners)
+    left = set(skip)
+    groups = [(sum(seeds.get(o, 0) for o in owners), -value, number, [o for o in owners if o not in left])
+              for value, number, owners in best.values()]  # fmt: skip
+    return [owners for *_rank, owners in sorted(groups) if owners]

@@ -319,6 +319,10 @@ class StudySection:
     """With seed_soup_runs: the configurations whose nets make the study's best net (a seed soup's ingredients, or a
     fresh training's own) take every other run of the refinement's worker, the best of them by mean over its nets
     first, up to their seed_soup_runs; with seed_soup_leader too, the leader by mean when none of them can take one."""
+    seed_soup_best_span: float = 0.0
+    """With seed_soup_best: mph below the study's best net within which another family's best net (a fresh training
+    or a seed soup of linear configurations with one view, traffic, temporal window and ε_test) makes its
+    configurations share those turns — every other one goes to such a family, the fewest seeds first; 0: none."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -530,7 +534,7 @@ class StudySpec:
         if twins:  # likewise
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
         optional = ("linear_twin_span", "seed_soup_families", "seed_ensembles", "seed_soup_swap_span",
-                    "linear_neighbours", "seed_soup_leader", "seed_soup_best")  # fmt: skip
+                    "linear_neighbours", "seed_soup_leader", "seed_soup_best", "seed_soup_best_span")  # fmt: skip
         for key in optional:  # likewise
             if not study[key]:
                 del study[key]
@@ -822,13 +826,19 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if best_seeds and not seed_runs:
         raise where.error("seed_soup_best", "gives the best net's configurations more fresh seeds, but seed_soup_runs "
                           "= 0", "set seed_soup_runs (e.g. 64), or remove seed_soup_best")  # fmt: skip
+    best_span = _float(table.get("seed_soup_best_span", d.seed_soup_best_span), f"{src}: [study] seed_soup_best_span",
+                       0.0, 100.0)  # fmt: skip
+    if best_span and not best_seeds:
+        raise where.error("seed_soup_best_span", "shares the best net's seed turns with other families, but "
+                          "seed_soup_best is off",
+                          "set seed_soup_best = true, or remove seed_soup_best_span")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
-        best_seeds,
+        best_seeds, best_span,
     )  # fmt: skip
 
 

@@ -1086,22 +1086,13 @@ class Driver:
         values = [t.value if t.state == TrialState.COMPLETE else None for t in trials]
         seeds = collections.Counter(n for n, _i in launched)
         others = ensemble.contender_configs(attrs, values, best[0] - span, seeds, skip=owners)
-        last = self._last_turn_of()
+        last = _last_turn_of(trials)
         order = [*others, owners] if last is not None and last in owners else [owners, *others]
         for group in order:  # the best net's family and the others take turns, the others fewest seeds first
             run = self._next_seed_of(trials, group, mean, launched)
             if run is not None:
                 return run
         return None
-
-    def _last_turn_of(self) -> int | None:
-        """The configuration (``race_of``) of the refinement's last seed turn (``keys.SEED_LEADER_RUN``), or None."""
-        assert self.study is not None
-        last = None
-        for t in self.study.get_trials(deepcopy=False):
-            if t.user_attrs.get(keys.SEED_LEADER_RUN) and keys.RETRY_OF not in t.user_attrs:
-                last = t.user_attrs.get(keys.RACE_OF)
-        return None if last is None else int(last)
 
     def _launch_leader_seed(self, slot: int) -> bool:
         """Start the next fresh seed of ``_seed_leader`` on ``slot``, a seed run like ``_launch_seed_run``'s; False
@@ -1721,6 +1712,13 @@ def _best_net(trials: Sequence[FrozenTrial], fresh: bool = False) -> tuple[float
         return None
     rank, number = max(found)
     return rank[0], number
+
+
+def _last_turn_of(trials: Sequence[FrozenTrial]) -> int | None:
+    """The configuration (``race_of``) of the refinement's last seed turn (``keys.SEED_LEADER_RUN``), or None."""
+    turns = [t.user_attrs.get(keys.RACE_OF) for t in trials
+             if t.user_attrs.get(keys.SEED_LEADER_RUN) and keys.RETRY_OF not in t.user_attrs]  # fmt: skip
+    return None if not turns or turns[-1] is None else int(turns[-1])
 
 
 def _best_score(trials: Sequence[FrozenTrial], fresh: bool = False) -> float | None:

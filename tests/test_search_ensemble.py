@@ -638,6 +638,30 @@ def test_a_configuration_whose_nets_cannot_stack_gets_no_seeds_and_no_stack(tmp_
         assert driver._launch_seed_soup(0) is stacks  # noqa: SLF001
 
 
+def _add_seed_rows(
+    study: Any, params: Any, dists: Any, net: str, configs: list[Any], rows: list[tuple[float, int, dict[str, Any]]]
+) -> None:
+    """Each row (value, configuration index, user attrs) as a COMPLETE trial of that configuration with ``net``."""
+    for value, which, attrs in rows:
+        attrs = {keys.CONFIG: configs[which], keys.ARTIFACT_NET_JSON: net, **attrs}
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
+                                                  user_attrs=attrs))  # fmt: skip
+
+
+def _refine_runs(driver: Any, study: Any, n: int, value: Any) -> list[tuple[int, int, bool]]:
+    """(race_of, race seed, a seed turn?) of the next ``n`` runs of the refinement's worker, each told
+    ``value(its user attrs, its index)``."""
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    runs = []
+    for i in range(n):
+        assert driver._launch_refine(0)  # noqa: SLF001
+        run = driver._running.pop(0).trial  # noqa: SLF001
+        attrs = study.trials[run.number].user_attrs
+        runs.append((attrs[keys.RACE_OF], attrs[keys.RACE_SEED], bool(attrs.get(keys.SEED_LEADER_RUN))))
+        study.tell(run, value(attrs, i))
+    return runs
+
+
 def test_the_leader_by_seed_mean_takes_every_other_run_of_the_refinement(tmp_path: Path) -> None:
     """With ``seed_soup_leader`` the configuration with the best mean over its fresh seeds (3 or more) takes turns
     with the rest of the refinement's runs: here with the probe seeds of two new linear configurations, which alone
@@ -658,19 +682,9 @@ def test_the_leader_by_seed_mean_takes_every_other_run_of_the_refinement(tmp_pat
         for owner, scores in ((0, (74.0, 74.2, 74.4, 74.2)), (1, (73.8,) * 4)):  # means 74.2 and 73.8
             rows += [(score, owner, {keys.RACE_OF: owner, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True})
                      for i, score in enumerate(scores)]  # fmt: skip
-        for value, which, attrs in rows:
-            attrs = {keys.CONFIG: configs[which], keys.ARTIFACT_NET_JSON: net, **attrs}
-            study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
-                                                      user_attrs=attrs))  # fmt: skip
-        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
-        runs = []
-        for _ in range(8):
-            assert driver._launch_refine(0)  # noqa: SLF001
-            run = driver._running.pop(0).trial  # noqa: SLF001
-            attrs = study.trials[run.number].user_attrs
-            runs.append((attrs[keys.RACE_OF], attrs[keys.RACE_SEED], bool(attrs.get(keys.SEED_LEADER_RUN))))
-            study.tell(run, 70.0 if attrs.get(keys.SEED_LEADER_RUN) else 74.0)  # each leader's run lowers its mean
-        got[on] = runs
+        _add_seed_rows(study, params, dists, net, configs, rows)
+        got[on] = _refine_runs(driver, study, 8, lambda attrs, _i: 70.0 if attrs.get(keys.SEED_LEADER_RUN) else 74.0)
+        # (each leader's run lowers its mean)
     assert got[False] == [(2, i, False) for i in range(4)] + [(3, i, False) for i in range(4)]
     assert got[True] == [(0, 4, True), (2, 0, False), (1, 4, True), (2, 1, False), (0, 5, True), (2, 2, False),
                          (2, 3, True), (3, 0, False)]  # fmt: skip
@@ -722,18 +736,8 @@ def test_the_best_nets_configurations_take_every_other_run_of_the_refinement(tmp
         rows += [(score, owner, {keys.RACE_OF: owner, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True}) for i in range(4)]
     soup = {keys.SOUP_OF: [1, 2, 12], keys.SEED_SOUP_OF: 1, keys.REFINE_OF: {"trial": 2, "budget": None}}
     rows.append((75.3, 2, soup))  # trials 1 (configuration 1), 2 and 12 (configuration 2): the best net
-    for value, which, attrs in rows:
-        attrs = {keys.CONFIG: configs[which].to_mapping(), keys.ARTIFACT_NET_JSON: net, **attrs}
-        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
-                                                  user_attrs=attrs))  # fmt: skip
-    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
-    runs = []
-    for i in range(6):
-        assert driver._launch_refine(0)  # noqa: SLF001
-        run = driver._running.pop(0).trial  # noqa: SLF001
-        attrs = study.trials[run.number].user_attrs
-        runs.append((attrs[keys.RACE_OF], attrs[keys.RACE_SEED], bool(attrs.get(keys.SEED_LEADER_RUN))))
-        study.tell(run, 75.5 if i == 2 else 70.0)  # the third run, configuration 1's, beats the soup
+    _add_seed_rows(study, params, dists, net, [c.to_mapping() for c in configs], rows)
+    runs = _refine_runs(driver, study, 6, lambda _attrs, i: 75.5 if i == 2 else 70.0)  # the third (1's) beats the soup
     fifth = (0, 4, True) if leader else (1, 5, True)
     assert runs == [(2, 4, True), (3, 0, False), (1, 4, True), (3, 1, False), fifth, (3, 2, False)]
 
@@ -789,19 +793,8 @@ def test_other_families_near_the_best_share_the_best_nets_turns(tmp_path: Path) 
         for owner, scores in ((0, (74.0,) * 4), (1, (74.0,)), (2, (75.2, 74.0, 74.0, 74.0))):
             rows += [(score, owner, {keys.RACE_OF: owner, keys.RACE_SEED: i, keys.SEED_SOUP_RUN: True})
                      for i, score in enumerate(scores)]  # fmt: skip
-        for value, which, attrs in rows:
-            attrs = {keys.CONFIG: configs[which].to_mapping(), keys.ARTIFACT_NET_JSON: net, **attrs}
-            study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=COMPLETE,
-                                                      user_attrs=attrs))  # fmt: skip
-        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
-        runs = []
-        for _ in range(8):
-            assert driver._launch_refine(0)  # noqa: SLF001
-            run = driver._running.pop(0).trial  # noqa: SLF001
-            attrs = study.trials[run.number].user_attrs
-            runs.append((attrs[keys.RACE_OF], bool(attrs.get(keys.SEED_LEADER_RUN))))
-            study.tell(run, 70.0)
-        got[span] = [owner for owner, turn in runs if turn]
+        _add_seed_rows(study, params, dists, net, [c.to_mapping() for c in configs], rows)
+        got[span] = [owner for owner, _i, turn in _refine_runs(driver, study, 8, lambda _a, _i: 70.0) if turn]
     assert got[0.0] == [0, 0, 0, 0]
     turns = got[0.25]
     assert turns[0::2] == [0, 0] and turns[1] == 1  # 1 (1 seed) before 2 (4 seeds, a better net): fewest first

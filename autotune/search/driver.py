@@ -71,7 +71,7 @@ from autotune import TrainConfig
 from autotune.convnet import stack
 from autotune.convnet.netjson import dumps_net, loads_net
 from autotune.learner.config import parse_layers
-from autotune.search import ensemble, keys, racing, refine, soup, space, twins
+from autotune.search import ensemble, keys, prior, racing, refine, soup, space, twins
 from autotune.search.balance import BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
 from autotune.search.denoise import DenoisedSampler
@@ -86,6 +86,7 @@ from autotune.search.objective import (
     process_alive,
     process_start,
 )
+from autotune.search.prior import PriorFreeSampler
 from autotune.search.records import RecordError, net_rank, net_text, scored_nets
 from autotune.search.seeds import derived_seed
 from autotune.search.spec import SEED_RUN_REACH, SEED_SOUP_REACH, SpecError, StudySpec
@@ -181,6 +182,16 @@ def make_sampler(
     needs = {"cmaes": "cmaes", "gp": "scipy"}.get(name)
     if needs is not None and importlib.util.find_spec(needs) is None:
         raise ConfigError(f"{spec.source}: [study] sampler: '{name}' needs the '{needs}' package; pip install {needs}")
+    base = _modelled(spec, seed, name)
+    if spec.study.prior_free_share > 0.0:  # a share of the draws from a sampler that never sees the prior
+        base = PriorFreeSampler(base, _modelled(spec, seed + 2, name), spec.study.prior_free_share)
+    if price is None:
+        return base
+    return CostGatedSampler(base, spec, price, cap if cap is not None else spec.study.cost_cap_s, seed)
+
+
+def _modelled(spec: StudySpec, seed: int, name: str) -> optuna.samplers.BaseSampler:
+    """The spec's sampler behind its balance and denoise wrappers (``make_sampler``), seeded ``seed``."""
     base = _base_sampler(spec, seed, name)
     if spec.study.balance:  # each value of a balanced parameter keeps its share (``balance.BalancedSampler``)
         dims, given = spec.dimensions, dict(spec.study.balance_values)
@@ -193,9 +204,7 @@ def make_sampler(
                                every_draw=spec.study.balance_every_draw)  # fmt: skip
     if spec.study.denoise:  # the history at a forest's estimate of each trial, not its own noisy score
         base = DenoisedSampler(base, denoise_reference_step(spec), seed, quantile=spec.study.denoise_quantile)
-    if price is None:
-        return base
-    return CostGatedSampler(base, spec, price, cap if cap is not None else spec.study.cost_cap_s, seed)
+    return base
 
 
 def denoise_reference_step(spec: StudySpec) -> int:
@@ -1399,6 +1408,11 @@ class Driver:
         if isinstance(self.study.sampler, CostGatedSampler):
             trial.set_user_attr(keys.REFUSED_DRAWS, self.study.sampler.refused(trial.number))
             balanced = self.study.sampler.base
+            if isinstance(balanced, PriorFreeSampler):
+                drew = balanced.drew(trial.number)
+                if drew:
+                    trial.set_user_attr(keys.PRIOR_FREE, True)
+                balanced = balanced.own if drew else balanced.base
             if isinstance(balanced, DenoisedSampler):
                 balanced = balanced.base
             if isinstance(balanced, BalancedSampler):
@@ -1519,9 +1533,14 @@ class Driver:
             return
         trials = self.study.get_trials(deepcopy=False)
         done = {t.user_attrs.get(keys.TWIN_OF) for t in trials}
-        for source in twins.parents(trials, self._twin_score, st.linear_twin_span):
+        sources = twins.parents(trials, self._twin_score, st.linear_twin_span)
+        own = self._prior_free(trials)
+        if own is not None:  # and the best of the trials made without the prior (``[study] prior_free_share``)
+            sources += twins.parents(own, self._twin_score, 0.0)
+        for source in sources:
             if source.number in done:
                 continue
+            done.add(source.number)
             user: dict[str, Any] = {keys.TWIN_OF: source.number}
             entry = race_entry(source, self.spec.race_min_budget)
             budget = None if entry is None else entry[1] if entry[1] is not None else entry[2].get("train_iterations")
@@ -1555,17 +1574,28 @@ class Driver:
             for moved in twins.neighbours(params, self.spec.space):
                 self.study.enqueue_trial(moved, user_attrs=user, skip_if_exists=True)
 
+    def _prior_free(self, trials: Sequence[FrozenTrial]) -> list[FrozenTrial] | None:
+        """With ``[study] prior_free_share`` and a prior in the study: its trials made without the prior
+        (``prior.from_prior``), whose best gets twins and neighbours as the study's does; else None."""
+        if self.spec.study.prior_free_share <= 0.0:
+            return None
+        made = prior.from_prior(trials)
+        return [t for t in trials if t.number not in made] if made else None
+
     def _neighbour_parents(self, trials: Sequence[FrozenTrial]) -> list[tuple[int, dict[str, Any], Any]]:
         """(configuration, parameters to move, budget) of ``_enqueue_neighbours``'s parents: the best seed soup's
-        configuration (from its best ingredient), then the linear leader by mean over its fresh seeds."""
+        configuration (from its best ingredient), that of the trials made without the prior
+        (``[study] prior_free_share``), then the linear leader by mean over its fresh seeds."""
         parents: list[tuple[int, dict[str, Any], Any]] = []
-        best = _best_score(trials)
-        soups = [t for t in trials if keys.SEED_SOUP_OF in t.user_attrs and t.state == TrialState.COMPLETE
-                 and t.value is not None and float(t.value) == best]  # fmt: skip
-        if soups and ensemble.is_linear(soups[0].user_attrs.get(keys.CONFIG)):
-            lead = soups[0]
-            parents.append((int(lead.user_attrs[keys.SEED_SOUP_OF]), dict(lead.params),
-                            lead.user_attrs[keys.CONFIG].get("train_iterations")))  # fmt: skip
+        own = self._prior_free(trials)
+        for pool in (trials,) if own is None else (trials, own):
+            best = _best_score(pool)
+            soups = [t for t in pool if keys.SEED_SOUP_OF in t.user_attrs and t.state == TrialState.COMPLETE
+                     and t.value is not None and float(t.value) == best]  # fmt: skip
+            if soups and ensemble.is_linear(soups[0].user_attrs.get(keys.CONFIG)):
+                lead = soups[0]
+                parents.append((int(lead.user_attrs[keys.SEED_SOUP_OF]), dict(lead.params),
+                                lead.user_attrs[keys.CONFIG].get("train_iterations")))  # fmt: skip
         seed_configs: dict[int, Mapping[str, Any]] = {}  # a configuration's seed runs' config (their budget)
         for t in trials:
             if keys.RACE_OF in t.user_attrs and t.state == TrialState.COMPLETE and keys.CONFIG in t.user_attrs:

@@ -129,6 +129,8 @@ WARM_START_CLIPPED: Final = "warm_start_clipped"
 """Crowd prior: the values clipped into the space (one line each)."""
 COPIED_FROM: Final = "copied_from"
 """``--warm-start STUDY``: ``<study>:<number>`` of the measured trial copied in as history."""
+PRIOR_FREE: Final = "prior_free"
+"""True on a draw of the sampler that never saw the study's prior (``[study] prior_free_share``)."""
 
 # -- one point of CURVE, one entry of RUNGS ----------------------------------------------------------
 STEP: Final = "step"

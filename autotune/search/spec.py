@@ -9,7 +9,7 @@ Five tables, every key optional unless said otherwise::
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
                   linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours, seed_soup_leader,
-                  seed_soup_best
+                  seed_soup_best, seed_soup_best_span, prior_free_share
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -323,6 +323,10 @@ class StudySection:
     """With seed_soup_best: mph below the study's best net within which another family's best net (a fresh training
     or a seed soup of linear configurations with one view, traffic, temporal window and ε_test) makes its
     configurations share those turns — every other one goes to such a family, the fewest seeds first; 0: none."""
+    prior_free_share: float = 0.0
+    """With a prior (``--warm-start crowd`` or ``STUDY``): the share of the sampled draws that come from a second
+    sampler whose history leaves out the prior and every trial made from it (``autotune.search.prior``), and whose
+    best configuration gets its linear twins and neighbours too; 0: every draw sees the whole history."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -534,7 +538,8 @@ class StudySpec:
         if twins:  # likewise
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
         optional = ("linear_twin_span", "seed_soup_families", "seed_ensembles", "seed_soup_swap_span",
-                    "linear_neighbours", "seed_soup_leader", "seed_soup_best", "seed_soup_best_span")  # fmt: skip
+                    "linear_neighbours", "seed_soup_leader", "seed_soup_best", "seed_soup_best_span",
+                    "prior_free_share")  # fmt: skip
         for key in optional:  # likewise
             if not study[key]:
                 del study[key]
@@ -832,13 +837,15 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         raise where.error("seed_soup_best_span", "shares the best net's seed turns with other families, but "
                           "seed_soup_best is off",
                           "set seed_soup_best = true, or remove seed_soup_best_span")  # fmt: skip
+    prior_free = _float(table.get("prior_free_share", d.prior_free_share), f"{src}: [study] prior_free_share", 0.0,
+                        1.0)  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
-        best_seeds, best_span,
+        best_seeds, best_span, prior_free,
     )  # fmt: skip
 
 

@@ -67,7 +67,7 @@ def _routed_study(with_prior: bool) -> tuple[optuna.Study, _Recording, _Recordin
     base, own = _Recording(0), _Recording(1)
     sampler = prior.PriorFreeSampler(base, own, 0.5)
     study = optuna.create_study(direction="maximize", sampler=sampler)
-    dist = {"x": optuna.distributions.FloatDistribution(0.0, 1.0)}
+    dist: dict[str, optuna.distributions.BaseDistribution] = {"x": optuna.distributions.FloatDistribution(0.0, 1.0)}
     crowd = {keys.WARM_START: "crowd:a"} if with_prior else {}
     study.add_trial(optuna.trial.create_trial(params={"x": 0.9}, distributions=dist, value=75.0, user_attrs=crowd))
     study.add_trial(optuna.trial.create_trial(params={"x": 0.8}, distributions=dist, value=74.0,

@@ -43,6 +43,9 @@ def test_the_prior_is_its_roots_and_every_trial_made_from_them() -> None:
     ]
     assert prior.from_prior(trials) == {0, 2, 3, 4, 5, 7, 9, 10}
     assert prior.from_prior([t for t in trials if t.number in (1, 6, 8, 11, 12)]) == set()
+    assert prior.prior_free(trials) == []  # no draw of the prior-free sampler's yet
+    trials[1].set_user_attr(keys.PRIOR_FREE, True)  # 1 was its draw: it and what was made from it, less the mix
+    assert [t.number for t in prior.prior_free(trials)] == [1, 6, 8, 11, 12]
 
 
 def test_the_prior_free_turns_are_the_share_spread_evenly() -> None:
@@ -75,15 +78,19 @@ def _routed_study(with_prior: bool) -> tuple[optuna.Study, _Recording, _Recordin
     study.add_trial(optuna.trial.create_trial(params={"x": 0.1}, distributions=dist, value=70.0))
     for _ in range(4):  # trials 3, 4, 5, 6
         trial = study.ask()
-        study.tell(trial, trial.suggest_float("x", 0.0, 1.0))
+        x = trial.suggest_float("x", 0.0, 1.0)
+        if sampler.drew(trial.number):  # as the driver records it
+            trial.set_user_attr(keys.PRIOR_FREE, True)
+        study.tell(trial, x)
     return study, base, own, sampler
 
 
 def test_the_prior_free_sampler_draws_its_share_from_the_history_without_the_prior() -> None:
     _, base, own, sampler = _routed_study(with_prior=True)
     assert sorted(own.seen) == [3, 5] and sorted(base.seen) == [4, 6]  # the odd numbers: the prior-free turns
-    assert own.seen[3] == [2, 3] and own.seen[5] == [2, 3, 4, 5]  # neither the crowd setting nor its twin
+    assert own.seen[3] == [] and own.seen[5] == [3]  # its own draws only: no crowd setting, twin, or base draw
     assert base.seen[4] == [0, 1, 2, 3, 4] and base.seen[6] == list(range(7))  # the whole history
+    assert [sampler.drew(n) for n in range(7)] == [False] * 3 + [True, False, True, False]
     _, base, own, sampler = _routed_study(with_prior=False)  # a study without a prior: every draw the base's
     assert not own.seen and sorted(base.seen) == [3, 4, 5, 6]
     with pytest.raises(ValueError, match="share must lie in"):
@@ -113,7 +120,8 @@ def test_the_best_trial_made_without_the_prior_gets_twins_and_neighbours_too(tmp
         crowd = _add(study, dists, hidden, 74.0, [(1200, 74.0)], **{keys.WARM_START: "crowd:a"})
         crowd_twin = _add(study, dists, {**hidden, "n_layers": 0, "method": "adagrad", LR_X_INPUTS: 3.0}, 74.5,
                           [(1200, 74.5)], **{keys.TWIN_OF: crowd})  # fmt: skip
-        draw = _add(study, dists, {**hidden, "patches_ahead": 4}, 73.0, [(1200, 73.0)])
+        _add(study, dists, {**hidden, "patches_ahead": 2}, 73.5, [(1200, 73.5)])  # the other sampler's draw
+        draw = _add(study, dists, {**hidden, "patches_ahead": 4}, 73.0, [(1200, 73.0)], **{keys.PRIOR_FREE: True})
         driver._enqueue_twins()  # noqa: SLF001
         waiting = study.get_trials(states=(WAITING,))
         twinned = [draw] * 3 if share else []  # the crowd's best has its twin: the search's best, with the share
@@ -123,7 +131,7 @@ def test_the_best_trial_made_without_the_prior_gets_twins_and_neighbours_too(tmp
 
         # neighbours: of the best soup, and of the best soup made without the prior
         linear = {**hidden, "n_layers": 0, "method": "adagrad", "lanes_side": 1, "patches_ahead": 4, LR_X_INPUTS: 1.0}
-        own = _add(study, dists, linear, 72.5, [(1200, 72.5)])
+        own = _add(study, dists, linear, 72.5, [(1200, 72.5)], **{keys.NEIGHBOUR_OF: draw})
         seed = _add(study, dists, linear, 72.8, [(1200, 72.8)], **{keys.RACE_OF: own, keys.RACE_SEED: 0})
         _add(study, dists, linear, 73.4, [], **{keys.SEED_SOUP_OF: own, keys.SOUP_OF: [own, seed]})
         mixed = {keys.SEED_SOUP_OF: crowd_twin, keys.SOUP_OF: [crowd_twin, seed]}  # made from the prior too

@@ -1575,12 +1575,9 @@ class Driver:
                 self.study.enqueue_trial(moved, user_attrs=user, skip_if_exists=True)
 
     def _prior_free(self, trials: Sequence[FrozenTrial]) -> list[FrozenTrial] | None:
-        """With ``[study] prior_free_share`` and a prior in the study: its trials made without the prior
-        (``prior.from_prior``), whose best gets twins and neighbours as the study's does; else None."""
-        if self.spec.study.prior_free_share <= 0.0:
-            return None
-        made = prior.from_prior(trials)
-        return [t for t in trials if t.number not in made] if made else None
+        """With ``[study] prior_free_share``: the prior-free sampler's draws and the trials made from them
+        (``prior.prior_free``), whose best gets twins and neighbours as the study's does; else None."""
+        return prior.prior_free(trials) if self.spec.study.prior_free_share > 0.0 else None
 
     def _neighbour_parents(self, trials: Sequence[FrozenTrial]) -> list[tuple[int, dict[str, Any], Any]]:
         """(configuration, parameters to move, budget) of ``_enqueue_neighbours``'s parents: the best seed soup's

@@ -8,9 +8,12 @@ Optuna counts every finished trial. Measured: a crowd-prior hour (study seed 2) 
 gsurma's narrow view (at most 5 lanes a side or under 30 patches ahead); a cold hour on seed 1 sampled 141, 104
 of them seeing the whole road (6+ lanes a side, 30+ ahead), and its linear adagrad nets there souped to 75.91
 (76.05 on unseen runs), above any crowd-prior hour's best (75.74). So with ``[study] prior_free_share`` that share
-of the draws comes from a second sampler (its own seed) whose history leaves out the prior and its lineage: a cold
-study inside the warm one, with its own random startup; the study's twins and neighbours follow its best too
-(``autotune.search.driver``). Without a prior in the study, every draw is the first sampler's, as before.
+of the draws comes from a second sampler (its own seed) whose history is its own draws and the trials made from
+them: a cold study inside the warm one, with its own random startup; the study's twins and neighbours follow its
+best too (``autotune.search.driver``). Its history leaves out the first sampler's draws as well: those are drawn
+near the prior, and a first try that showed the second sampler every trial not made from the prior had it back
+in gsurma's view (0–8 lanes a side, mostly 0–3) after its startup. Without a prior in the study, every draw is
+the first sampler's, as before.
 
 Pure over trials; the sampler is a routing wrapper, deterministic in the trial number.
 """
@@ -28,7 +31,7 @@ from optuna.trial import FrozenTrial, TrialState
 from autotune.search import keys
 from autotune.search.history import HistoryView
 
-__all__ = ["OwnView", "PriorFreeSampler", "from_prior", "own_turn"]
+__all__ = ["OwnView", "PriorFreeSampler", "from_prior", "made_from", "own_turn", "prior_free"]
 
 ROOTS = (keys.WARM_START, keys.COPIED_FROM)
 """A trial with one of these user attrs is the prior itself: an enqueued crowd setting, or a copied trial."""
@@ -47,15 +50,28 @@ def _parents(attrs: dict[str, Any]) -> Iterable[int]:
         yield int(n)
 
 
-def from_prior(trials: Sequence[FrozenTrial]) -> set[int]:
-    """The numbers of the trials that are the prior (``ROOTS``) or were made from it, at any remove (a twin of a
-    crowd setting, that twin's neighbour, its seed runs and their soups). One pass in number order: a trial is
-    made from trials that were there before it."""
+def made_from(trials: Sequence[FrozenTrial], roots: tuple[str, ...]) -> set[int]:
+    """The numbers of the trials with one of the user attrs ``roots``, or made from one at any remove (a twin of
+    it, that twin's neighbour, its seed runs and their soups). One pass in number order: a trial is made from
+    trials that were there before it."""
     out: set[int] = set()
     for t in sorted(trials, key=lambda t: t.number):
-        if any(k in t.user_attrs for k in ROOTS) or any(n in out for n in _parents(t.user_attrs)):
+        if any(k in t.user_attrs for k in roots) or any(n in out for n in _parents(t.user_attrs)):
             out.add(t.number)
     return out
+
+
+def from_prior(trials: Sequence[FrozenTrial]) -> set[int]:
+    """The numbers of the trials that are the prior (``ROOTS``) or were made from it."""
+    return made_from(trials, ROOTS)
+
+
+def prior_free(trials: Sequence[FrozenTrial]) -> list[FrozenTrial]:
+    """The prior-free sampler's draws (``keys.PRIOR_FREE``) and the trials made from them, less any made from the
+    prior too (a family soup with a crowd twin's seed in it): the history that sampler sees."""
+    prior = from_prior(trials)
+    own = made_from(trials, (keys.PRIOR_FREE,))
+    return [t for t in trials if t.number in own and t.number not in prior]
 
 
 def own_turn(number: int, share: float) -> bool:
@@ -65,11 +81,10 @@ def own_turn(number: int, share: float) -> bool:
 
 
 class OwnView(HistoryView):
-    """The history without the prior and its lineage (``from_prior``)."""
+    """The prior-free sampler's history: its own draws and the trials made from them (``prior_free``)."""
 
     def shown(self, trials: list[FrozenTrial]) -> list[FrozenTrial]:
-        prior = from_prior(trials)
-        return [t for t in trials if t.number not in prior]
+        return prior_free(trials)
 
 
 class PriorFreeSampler(BaseSampler):
@@ -95,7 +110,8 @@ class PriorFreeSampler(BaseSampler):
         return self._own
 
     def drew(self, number: int) -> bool:
-        """Whether trial ``number``'s parameters came from ``own`` (this process's draws)."""
+        """Whether trial ``number``'s parameters came from ``own`` (this process's draws; the driver stores it on
+        the trial as ``keys.PRIOR_FREE``, which is what ``OwnView`` reads)."""
         return number in self._drawn
 
     def route(self, study: Study, trial: FrozenTrial) -> tuple[BaseSampler, Any]:
@@ -112,14 +128,14 @@ class PriorFreeSampler(BaseSampler):
 
     def infer_relative_search_space(self, study: Study, trial: FrozenTrial) -> dict[str, BaseDistribution]:
         sampler, seen = self.route(study, trial)
+        if sampler is self._own:  # asked for draws only (the cost gate never asks for an enqueued trial's)
+            self._drawn.add(trial.number)
         return sampler.infer_relative_search_space(seen, trial)
 
     def sample_relative(
         self, study: Study, trial: FrozenTrial, search_space: dict[str, BaseDistribution]
     ) -> dict[str, Any]:
         sampler, seen = self.route(study, trial)
-        if sampler is self._own:
-            self._drawn.add(trial.number)
         return sampler.sample_relative(seen, trial, search_space)
 
     def sample_independent(

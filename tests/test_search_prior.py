@@ -10,7 +10,7 @@ import optuna
 import pytest
 
 from autotune.search import keys, prior, space, twins
-from autotune.search.driver import make_sampler
+from autotune.search.driver import make_pruner, make_sampler
 from autotune.search.gate import CostGatedSampler
 from autotune.search.spec import LR_X_INPUTS, SpecError
 from tests.test_search_twins import HIDDEN, _add, _driver, _spec
@@ -144,3 +144,35 @@ def test_the_best_trial_made_without_the_prior_gets_twins_and_neighbours_too(tmp
             mine = [t.system_attrs["fixed_params"] for t in study.get_trials(states=(WAITING,))
                     if t.user_attrs.get(keys.NEIGHBOUR_OF) == own]  # fmt: skip
             assert mine == twins.neighbours(linear, driver.spec.space)
+
+
+def _halving(pruner: optuna.pruners.BasePruner) -> list[bool]:
+    """Whether each prior-free trial (scoring 70–73, then 60 and 69, at the first rung) is pruned, after nine others
+    (crowd settings and draws near them, 74–76) reached that rung."""
+    study = optuna.create_study(direction="maximize", sampler=optuna.samplers.RandomSampler(seed=0), pruner=pruner)
+    for i in range(9):
+        trial = study.ask()
+        if i < 3:
+            trial.set_user_attr(keys.WARM_START, f"crowd:{i}")
+        trial.report(74.0 + i / 4, 1)
+        trial.should_prune()
+        study.tell(trial, 74.0 + i / 4)
+    out = []
+    for score in (70.0, 71.0, 72.0, 73.0, 60.0, 69.0):
+        trial = study.ask()
+        trial.set_user_attr(keys.PRIOR_FREE, True)
+        trial.report(score, 1)
+        out.append(trial.should_prune())
+        study.tell(trial, state=optuna.trial.TrialState.PRUNED)
+    return out
+
+
+def test_prior_free_draws_are_halved_among_their_own_kind() -> None:
+    sha = optuna.pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=3, min_early_stopping_rate=0)
+    assert _halving(sha) == [True] * 6  # among the crowd's: never in the top third
+    # among their own kind: the first four each the best so far, then 60 and 69 below the top third
+    assert _halving(prior.PriorFreePruner(sha)) == [False] * 4 + [True, True]
+    spec = _spec(prior_free_share=0.5, pruner="sha")
+    made = make_pruner(spec)
+    assert isinstance(made, prior.PriorFreePruner) and isinstance(made.base, optuna.pruners.SuccessiveHalvingPruner)
+    assert not isinstance(make_pruner(_spec(pruner="sha")), prior.PriorFreePruner)

@@ -86,7 +86,7 @@ from autotune.search.objective import (
     process_alive,
     process_start,
 )
-from autotune.search.prior import PriorFreeSampler
+from autotune.search.prior import PriorFreePruner, PriorFreeSampler
 from autotune.search.records import RecordError, net_rank, net_text, scored_nets
 from autotune.search.seeds import derived_seed
 from autotune.search.spec import SEED_RUN_REACH, SEED_SOUP_REACH, SpecError, StudySpec
@@ -235,7 +235,13 @@ def _base_sampler(spec: StudySpec, seed: int, name: str, startup: int | None = N
 
 
 def make_pruner(spec: StudySpec) -> optuna.pruners.BasePruner:
-    """The spec's pruner over the report schedule (steps 0 … report_points − 1), tuned by [evaluation]."""
+    """The spec's pruner over the report schedule (steps 0 … report_points − 1), tuned by [evaluation]; with
+    ``[study] prior_free_share``, the prior-free draws are pruned among their own kind (``prior.PriorFreePruner``)."""
+    base = _base_pruner(spec)
+    return PriorFreePruner(base) if spec.study.prior_free_share > 0.0 else base
+
+
+def _base_pruner(spec: StudySpec) -> optuna.pruners.BasePruner:
     e = spec.evaluation
     p = optuna.pruners
     name = spec.study.pruner

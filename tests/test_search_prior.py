@@ -1,5 +1,5 @@
-"""Draws free of the prior (``[study] prior_free_share``): the prior's lineage, the routing sampler, the spec key,
-and the driver's twins and neighbours of the best trial made without the prior."""
+"""Draws free of the prior (``[study] prior_free_share``): the prior's lineage, the routing sampler, the halving
+among their own kind, the spec key, and the driver's twins and neighbours of the prior-free sampler's best."""
 
 from __future__ import annotations
 

@@ -183,7 +183,7 @@ def make_sampler(
     if needs is not None and importlib.util.find_spec(needs) is None:
         raise ConfigError(f"{spec.source}: [study] sampler: '{name}' needs the '{needs}' package; pip install {needs}")
     base = _modelled(spec, seed, name)
-    if spec.study.prior_free_share > 0.0:  # a share of the draws from a sampler that never sees the prior
+    if spec.study.prior_free_share > 0.0:  # a share of the draws from a sampler that sees only its own draws
         base = PriorFreeSampler(base, _modelled(spec, seed + 2, name), spec.study.prior_free_share)
     if price is None:
         return base
@@ -1541,7 +1541,7 @@ class Driver:
         done = {t.user_attrs.get(keys.TWIN_OF) for t in trials}
         sources = twins.parents(trials, self._twin_score, st.linear_twin_span)
         own = self._prior_free(trials)
-        if own is not None:  # and the best of the trials made without the prior (``[study] prior_free_share``)
+        if own is not None:  # and the prior-free sampler's best (``[study] prior_free_share``)
             sources += twins.parents(own, self._twin_score, 0.0)
         for source in sources:
             if source.number in done:
@@ -1587,8 +1587,8 @@ class Driver:
 
     def _neighbour_parents(self, trials: Sequence[FrozenTrial]) -> list[tuple[int, dict[str, Any], Any]]:
         """(configuration, parameters to move, budget) of ``_enqueue_neighbours``'s parents: the best seed soup's
-        configuration (from its best ingredient), that of the trials made without the prior
-        (``[study] prior_free_share``), then the linear leader by mean over its fresh seeds."""
+        configuration (from its best ingredient), that of the prior-free sampler's draws and what was made from
+        them (``[study] prior_free_share``), then the linear leader by mean over its fresh seeds."""
         parents: list[tuple[int, dict[str, Any], Any]] = []
         own = self._prior_free(trials)
         for pool in (trials,) if own is None else (trials, own):

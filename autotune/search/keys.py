@@ -130,7 +130,7 @@ WARM_START_CLIPPED: Final = "warm_start_clipped"
 COPIED_FROM: Final = "copied_from"
 """``--warm-start STUDY``: ``<study>:<number>`` of the measured trial copied in as history."""
 PRIOR_FREE: Final = "prior_free"
-"""True on a draw of the sampler that never saw the study's prior (``[study] prior_free_share``)."""
+"""True on a draw of the sampler whose history is only its own draws (``[study] prior_free_share``)."""
 
 # -- one point of CURVE, one entry of RUNGS ----------------------------------------------------------
 STEP: Final = "step"

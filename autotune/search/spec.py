@@ -325,8 +325,9 @@ class StudySection:
     configurations share those turns — every other one goes to such a family, the fewest seeds first; 0: none."""
     prior_free_share: float = 0.0
     """With a prior (``--warm-start crowd`` or ``STUDY``): the share of the sampled draws that come from a second
-    sampler whose history leaves out the prior and every trial made from it (``autotune.search.prior``), and whose
-    best configuration gets its linear twins and neighbours too; 0: every draw sees the whole history."""
+    sampler whose history is only its own draws and the trials made from them, halved among themselves
+    (``autotune.search.prior``), and whose best configuration gets its linear twins and neighbours too; 0: every
+    draw sees the whole history."""
 
     @property
     def cost_cap_s(self) -> float:

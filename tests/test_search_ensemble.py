@@ -809,3 +809,58 @@ def test_seed_soup_best_span_is_checked() -> None:
         _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best_span=0.25)
     with pytest.raises(SpecError, match=r"\[study\] seed_soup_best_span: must be a number"):
         _spec(refine_share=0.5, seed_soups=[2], seed_soup_runs=8, seed_soup_best=True, seed_soup_best_span="wide")
+
+
+def test_with_seed_soup_views_linear_configurations_of_two_views_soup_on_their_union(tmp_path: Path) -> None:
+    """With ``seed_soup_views`` (and families) two linear configurations that differ only in their view are one
+    family: their soup is scored with the union of their views, each net moved onto it (``widen``), so the soup's
+    Q-values are the mean of theirs. Without it each is its own family of one net: nothing to soup."""
+    narrow = LINEAR.replace(train_iterations=1200, lanes_side=0, patches_ahead=2)
+    wide = LINEAR.replace(train_iterations=1200, lanes_side=1, patches_ahead=1, patches_behind=1)
+    texts = [dumps_net(train(c.replace(train_iterations=0), seed=s, quick_eval=False).convnet())
+             for s, c in enumerate((narrow, wide))]  # fmt: skip
+    for views in (False, True):
+        spec = _spec(n_trials=20, timeout_s=3600, seed_soups=[2], seed_soup_families=True,
+                     seed_soup_views=views).with_overrides(storage=str(tmp_path / f"{views}.log"), workers=2)  # fmt: skip
+        driver, study, storages, dists, params = _driver_on_journal(spec)
+        for config, value, text in zip((narrow, wide), (74.0, 73.8), texts, strict=True):
+            study.add_trial(optuna.trial.create_trial(
+                params=params, distributions=dists, value=value, state=COMPLETE,
+                user_attrs={keys.CONFIG: config.to_mapping(), keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: value}],
+                            keys.ARTIFACT_NET_JSON: _upload(storages, study, text)},
+            ))  # fmt: skip
+        driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+        if not views:
+            assert not driver._launch_seed_soup(0)  # noqa: SLF001
+            continue
+        assert driver._launch_seed_soup(0)  # noqa: SLF001
+        made = study.trials[-1]
+        assert made.user_attrs[keys.SOUP_OF] == [0, 1] and made.user_attrs[keys.SEED_SOUP_OF] == 0
+        union = narrow.replace(lanes_side=1, patches_ahead=2, patches_behind=1)  # the best's settings, the union view
+        assert made.user_attrs[keys.CONFIG] == union.to_mapping()
+        net = loads_net(driver.pool.tasks[-1].init_net)
+        assert net.input_size == union.net_inputs == 9
+        x_union = np.random.default_rng(1).normal(size=(3, 3))  # rows -2…0 (ahead 2, behind 1) × lanes -1…1
+        members = [loads_net(t) for t in texts]
+        expected = np.mean([forward(members[0], x_union[:2, 1]), forward(members[1], x_union[1:, :].ravel())], axis=0)
+        np.testing.assert_allclose(forward(net, x_union.ravel()), expected, rtol=0, atol=1e-12)
+
+
+def test_seed_soup_views_is_checked() -> None:
+    assert not _spec().study.seed_soup_views and "seed_soup_views" not in _spec().to_dict()["study"]
+    on = _spec(seed_soups=[2], seed_soup_families=True, seed_soup_views=True)
+    assert on.study.seed_soup_views and on.to_dict()["study"]["seed_soup_views"] is True
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_views: .*seed_soup_families is off.*set seed_soup_famil"):
+        _spec(seed_soups=[2], seed_soup_views=True)
+    with pytest.raises(SpecError, match=r"\[study\] seed_soup_views: must be true or false, got 1"):
+        _spec(seed_soups=[2], seed_soup_families=True, seed_soup_views=1)
+
+
+def test_family_key_with_views_leaves_out_only_the_view() -> None:
+    a = LINEAR.replace(lanes_side=0, patches_ahead=2).to_mapping()
+    b = LINEAR.replace(lanes_side=2, patches_ahead=5, patches_behind=3).to_mapping()
+    assert ensemble.family_key(a) != ensemble.family_key(b)
+    assert ensemble.family_key(a, views=True) == ensemble.family_key(b, views=True)
+    for other in ({"other_agents": 3}, {"temporal_window": 1}, {"epsilon_test_time": 0.05}):
+        assert ensemble.family_key(LINEAR.replace(**other).to_mapping(), views=True) != ensemble.family_key(a, True)
+    assert ensemble.family_key(TINY.to_mapping(), views=True) is None  # hidden layers: no family

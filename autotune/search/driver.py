@@ -68,7 +68,7 @@ from optuna.storages import BaseStorage
 from optuna.trial import FrozenTrial, Trial, TrialState
 
 from autotune import TrainConfig
-from autotune.convnet import stack
+from autotune.convnet import stack, widen
 from autotune.convnet.netjson import dumps_net, loads_net
 from autotune.learner.config import parse_layers
 from autotune.search import ensemble, keys, prior, racing, refine, soup, space, twins
@@ -937,7 +937,7 @@ class Driver:
             return False
         trials = self.study.get_trials(deepcopy=False)
         rows = [(t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials]
-        groups, family = ensemble.seed_groups(rows, st.seed_soup_families, st.seed_ensembles)
+        groups, family = ensemble.seed_groups(rows, st.seed_soup_families, st.seed_ensembles, st.seed_soup_views)
         if not any(len(nets) > 1 for nets in groups.values()):
             return False
         if not st.seed_soup_families:
@@ -971,6 +971,9 @@ class Driver:
         config = TrainConfig.from_mapping(best.user_attrs[keys.CONFIG])
         if config.layers:  # a stack of k: its config has every hidden width × k, so it refines as it is stored
             config = config.replace(layers=stack.stacked_hidden(config.layers, len(ingredients)))
+        else:  # nets of several views (seed_soup_views) are souped on the union of their views
+            lanes, ahead, behind = widen.union(ensemble.view_of(trials[n].user_attrs[keys.CONFIG]) for n in ingredients)
+            config = config.replace(lanes_side=lanes, patches_ahead=ahead, patches_behind=behind)
         self.study.enqueue_trial(dict(best.params), user_attrs={
             keys.CONFIG: config.to_mapping(), keys.REFINE_OF: refine.Parent(number, None, score).to_attr(),
             keys.SOUP_OF: list(ingredients), keys.SEED_SOUP_OF: owner,
@@ -1002,7 +1005,7 @@ class Driver:
         candidates = racing.entrants([(n, e[0], e[2]) for n, e in entries.items()], len(entries))
         level: dict[int, float] = {}
         rows = [(t.number, t.user_attrs, t.value, t.state == TrialState.COMPLETE) for t in trials]
-        groups, family = ensemble.seed_groups(rows, hidden=st.seed_ensembles)
+        groups, family = ensemble.seed_groups(rows, hidden=st.seed_ensembles, views=st.seed_soup_views)
         for owner, nets in groups.items():
             level[owner] = max(s for _, s in nets)
         if not st.seed_soup_families:
@@ -1100,7 +1103,9 @@ class Driver:
             return self._next_seed_of(trials, owners, mean, launched)
         values = [t.value if t.state == TrialState.COMPLETE else None for t in trials]
         seeds = collections.Counter(n for n, _i in launched)
-        others = ensemble.contender_configs(attrs, values, best[0] - span, seeds, skip=owners)
+        others = ensemble.contender_configs(
+            attrs, values, best[0] - span, seeds, skip=owners, views=self.spec.study.seed_soup_views
+        )
         last = _last_turn_of(trials)
         order = [*others, owners] if last is not None and last in owners else [owners, *others]
         for group in order:  # the best net's family and the others take turns, the others fewest seeds first
@@ -1122,11 +1127,22 @@ class Driver:
 
     def _soup_net(self, ingredients: list[int], stacked: bool = False) -> str:
         """The convnetjs Net JSON of the weight soup of ``ingredients``' stored nets; ``stacked`` (a seed soup): their
-        ensemble (``stack.stack_nets``: the mean of their weights without hidden layers, else side by side)."""
+        ensemble (``stack.stack_nets``: the mean of their weights without hidden layers, else side by side), linear
+        nets of several views moved onto the union of their views first (``widen.widen_linear``)."""
+        assert self.study is not None
         texts = [(int(n), self._parent_net(refine.Parent(int(n), None, 0.0))) for n in ingredients]
         combine = stack.stack_nets if stacked else soup.average_nets
         try:
-            return dumps_net(combine([loads_net(text, where=f"trial {n}") for n, text in texts]))
+            nets = [loads_net(text, where=f"trial {n}") for n, text in texts]
+            if stacked:
+                trials = self.study.get_trials(deepcopy=False)
+                configs = [TrainConfig.from_mapping(trials[n].user_attrs[keys.CONFIG]) for n, _ in texts]
+                views = [(c.lanes_side, c.patches_ahead, c.patches_behind) for c in configs]
+                if len(set(views)) > 1:
+                    wide = widen.union(views)
+                    nets = [widen.widen_linear(net, view, wide, c.temporal_window)
+                            for net, view, c in zip(nets, views, configs, strict=True)]  # fmt: skip
+            return dumps_net(combine(nets))
         except ConfigError as exc:
             raise _Refused(f"weight soup: {exc}") from None
 

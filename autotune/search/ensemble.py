@@ -32,17 +32,19 @@ A configuration's nets are its selecting trial's value and its race runs' (``rac
 With ``[study] seed_soup_families`` the linear configurations that see the same inputs and are scored alike
 (``family_key``: a configuration's linear twins, trained by other methods) pool their nets: a crowd-prior hour's
 twins of one configuration scored 75.24 (sgd) and 75.13 (adagrad), and their soup 75.51, where neither one's own
-four seeds (to 73.76) souped as high.
+four seeds (to 73.76) souped as high. With ``[study] seed_soup_views`` too, the view is left out of the family: a
+soup's nets are moved onto the union of their views first (``autotune.convnet.widen``), so a configuration's view
+neighbours (``autotune.search.twins``) soup with it.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+from autotune.convnet.widen import View
 from autotune.learner.config import TrainConfig, parse_layers
 from autotune.search import keys
 from autotune.search.racing import Entrant, RaceRun
@@ -50,7 +52,7 @@ from autotune.search.soup import next_soup
 from sim.config import ConfigError
 
 __all__ = [
-    "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "STACK_SPAN", "is_linear", "family_key", "seed_nets",
+    "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "STACK_SPAN", "is_linear", "family_key", "view_of", "seed_nets",
     "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run", "best_net_configs", "contender_configs",
 ]  # fmt: skip
 
@@ -91,10 +93,12 @@ Trials = Iterable[tuple[int, Mapping[str, Any], float | None, bool]]
 """(number, user attrs, value, COMPLETE?) of a study's trials."""
 
 
-def family_key(config: Mapping[str, Any] | None) -> tuple[Any, ...] | None:
+def family_key(config: Mapping[str, Any] | None, views: bool = False) -> tuple[Any, ...] | None:
     """What a linear net's official score depends on besides its weights — the engine (ruleset, view, other agents),
     the temporal window and ε_test — or None for a config that is not linear: two linear nets with one key take the
-    same inputs and are scored alike, so their mean is their ensemble whatever trained them."""
+    same inputs and are scored alike, so their mean is their ensemble whatever trained them. ``views`` (``[study]
+    seed_soup_views``): the view left out — nets moved onto the union of their views (``autotune.convnet.widen``)
+    keep their Q-values, so their mean is their ensemble too."""
     if not is_linear(config):
         return None
     assert config is not None
@@ -102,22 +106,31 @@ def family_key(config: Mapping[str, Any] | None) -> tuple[Any, ...] | None:
         c = TrainConfig.from_mapping(config)
     except (ConfigError, TypeError, ValueError):
         return None
-    return (*dataclasses.astuple(c.engine_config), c.temporal_window, c.epsilon_test_time)
+    engine = c.engine_config
+    view = () if views else (engine.lanes_side, engine.patches_ahead, engine.patches_behind)
+    return (engine.ruleset, *view, engine.other_agents, c.temporal_window, c.epsilon_test_time)
+
+
+def view_of(config: Mapping[str, Any]) -> View:
+    """(lanes_side, patches_ahead, patches_behind) of a stored config (``keys.CONFIG``)."""
+    c = TrainConfig.from_mapping(config)
+    return (c.lanes_side, c.patches_ahead, c.patches_behind)
 
 
 Groups = dict[int, list[tuple[int, float]]]
 """Fresh-seed nets (trial number, score) by configuration (``seed_nets``)."""
 
 
-def seed_nets(trials: Trials, families: bool = False, hidden: bool = False) -> Groups:
+def seed_nets(trials: Trials, families: bool = False, hidden: bool = False, views: bool = False) -> Groups:
     """The fresh-seed nets of each linear configuration among ``trials`` (number, user attrs, value, COMPLETE?): its
     selecting trial's value and its race runs' — COMPLETE, with a stored net — keyed by the selecting trial's
     number, as (trial number, score). Refinement runs and soups, retries and copied history are none of them.
     ``families`` (``[study] seed_soup_families``): the nets of every linear configuration with one ``family_key``
     (a configuration's linear twins, whose trainers differ) in one group, keyed by its first configuration
     (``seed_groups``). ``hidden`` (``[study] seed_ensembles``): configurations with hidden layers too, each its
-    own group (their soups are stacks, ``autotune.convnet.stack``)."""
-    return seed_groups(trials, families, hidden)[0]
+    own group (their soups are stacks, ``autotune.convnet.stack``). ``views`` (``[study] seed_soup_views``): with
+    ``families``, linear configurations of any view in one family (``family_key``)."""
+    return seed_groups(trials, families, hidden, views)[0]
 
 
 def _merged(groups: Groups, family: Mapping[int, int]) -> Groups:
@@ -127,15 +140,17 @@ def _merged(groups: Groups, family: Mapping[int, int]) -> Groups:
     return merged
 
 
-def seed_groups(trials: Trials, families: bool = False, hidden: bool = False) -> tuple[Groups, dict[int, int]]:
-    """``seed_nets(trials, families, hidden)`` and the family of each configuration with seed nets: the
+def seed_groups(
+    trials: Trials, families: bool = False, hidden: bool = False, views: bool = False
+) -> tuple[Groups, dict[int, int]]:
+    """``seed_nets(trials, families, hidden, views)`` and the family of each configuration with seed nets: the
     lowest-numbered configuration sharing its ``family_key`` — stable as the study grows, so a family's soups stay
     recorded under one number; one with hidden layers (with ``hidden``) is its own."""
-    groups, family = _grouped(trials, hidden)
+    groups, family = _grouped(trials, hidden, views)
     return (_merged(groups, family) if families else groups), family
 
 
-def _grouped(trials: Trials, hidden: bool = False) -> tuple[Groups, dict[int, int]]:
+def _grouped(trials: Trials, hidden: bool = False, views: bool = False) -> tuple[Groups, dict[int, int]]:
     groups: Groups = {}
     keyed: dict[int, tuple[Any, ...] | None] = {}
     for number, attrs, value, complete in trials:
@@ -147,7 +162,7 @@ def _grouped(trials: Trials, hidden: bool = False) -> tuple[Groups, dict[int, in
             continue
         owner = int(attrs[keys.RACE_OF]) if keys.RACE_OF in attrs else number
         groups.setdefault(owner, []).append((number, float(value)))
-        keyed.setdefault(owner, family_key(attrs.get(keys.CONFIG)))
+        keyed.setdefault(owner, family_key(attrs.get(keys.CONFIG), views))
     first: dict[tuple[Any, ...], int] = {}
     family = {}
     for owner in sorted(groups):
@@ -305,12 +320,13 @@ def contender_configs(
     floor: float,
     seeds: Mapping[int, int],
     skip: Iterable[int] = (),
+    views: bool = False,
 ) -> list[list[int]]:
     """For each family (``family_key``; a configuration with hidden layers is its own) whose best net scores
     ``floor`` or more, the configurations whose seeds make that net (``best_net_configs``: a fresh training or a
     seed soup; ``attrs``/``values``: every trial's user attrs and COMPLETE value, None otherwise, by number), those
     in ``skip`` left out; the family with the fewest fresh seeds (``seeds``: runs launched per configuration) first,
-    then the higher best net.
+    then the higher best net. ``views``: families of any view (``family_key``).
 
     ``[study] seed_soup_best_span`` gives them the best net's family's turns every other time: a family's soups
     gain little past ~10-20 seeds (in four crowd-prior hours the best family's soups stopped at 75.61-75.74 with 46
@@ -324,7 +340,7 @@ def contender_configs(
         owners = best_net_configs(number, attrs)
         if not owners:
             continue
-        key = family_key(attrs[number].get(keys.CONFIG)) or ("hidden", *owners)
+        key = family_key(attrs[number].get(keys.CONFIG), views) or ("hidden", *owners)
         if key not in best or (value, -number) > (best[key][0], -best[key][1]):
             best[key] = (float(value), number, owners)
     left = set(skip)

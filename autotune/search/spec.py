@@ -9,7 +9,7 @@ Five tables, every key optional unless said otherwise::
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
                   linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours, seed_soup_leader,
-                  seed_soup_best, seed_soup_best_span, prior_free_share
+                  seed_soup_best, seed_soup_best_span, prior_free_share, seed_soup_views
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -328,6 +328,10 @@ class StudySection:
     sampler whose history is only its own draws and the trials made from them, halved among themselves
     (``autotune.search.prior``), and whose best configuration gets its linear twins and neighbours too; 0: every
     draw sees the whole history."""
+    seed_soup_views: bool = False
+    """With seed_soup_families: linear configurations of any view in one family (traffic, temporal window and
+    ε_test alike): a soup's nets are moved onto the union of their views (``autotune.convnet.widen``: the same
+    Q-values), so a configuration's view neighbours soup with it."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -540,7 +544,7 @@ class StudySpec:
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
         optional = ("linear_twin_span", "seed_soup_families", "seed_ensembles", "seed_soup_swap_span",
                     "linear_neighbours", "seed_soup_leader", "seed_soup_best", "seed_soup_best_span",
-                    "prior_free_share")  # fmt: skip
+                    "prior_free_share", "seed_soup_views")  # fmt: skip
         for key in optional:  # likewise
             if not study[key]:
                 del study[key]
@@ -840,13 +844,20 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
                           "set seed_soup_best = true, or remove seed_soup_best_span")  # fmt: skip
     prior_free = _float(table.get("prior_free_share", d.prior_free_share), f"{src}: [study] prior_free_share", 0.0,
                         1.0)  # fmt: skip
+    views = _flag(table, "seed_soup_views", d.seed_soup_views, where)
+    if views and not families:
+        raise where.error(
+            "seed_soup_views",
+            "soups linear configurations of other views together, but seed_soup_families is off",
+            "set seed_soup_families = true, or remove seed_soup_views",
+        )
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
-        best_seeds, best_span, prior_free,
+        best_seeds, best_span, prior_free, views,
     )  # fmt: skip
 
 

@@ -820,8 +820,8 @@ def test_with_seed_soup_views_linear_configurations_of_two_views_soup_on_their_u
     texts = [dumps_net(train(c.replace(train_iterations=0), seed=s, quick_eval=False).convnet())
              for s, c in enumerate((narrow, wide))]  # fmt: skip
     for views in (False, True):
-        spec = _spec(n_trials=20, timeout_s=3600, seed_soups=[2], seed_soup_families=True,
-                     seed_soup_views=views).with_overrides(storage=str(tmp_path / f"{views}.log"), workers=2)  # fmt: skip
+        spec = _spec(n_trials=20, timeout_s=3600, seed_soups=[2], seed_soup_families=True, seed_soup_views=views)
+        spec = spec.with_overrides(storage=str(tmp_path / f"{views}.log"), workers=2)
         driver, study, storages, dists, params = _driver_on_journal(spec)
         for config, value, text in zip((narrow, wide), (74.0, 73.8), texts, strict=True):
             study.add_trial(optuna.trial.create_trial(

@@ -552,10 +552,10 @@ def test_v2_agents_during_training():
 
 def test_blind_agents_are_answered_inside_the_simulator_with_the_same_draws():
     """Agents at ε = 1 (burnin > tw + 1) take their two draws per decision a block ahead and are answered inside
-    the simulator: the training run is the one deciding them one by one gave (pinned before the change:
-    agent decisions, training-run scores and the trained weights' digest, bit for bit)."""
-    import hashlib
-
+    the simulator: the training run is the one deciding them one by one gave (pinned before the change: agent
+    decisions and training-run scores exactly; the trained float32 weights to 1e-5, since torch's CPU kernels round
+    the last bits by the machine's vector unit: the digest pinned first, fe305255b07aa7e2, came out 8bc20ce8ca28c6d2
+    on an AVX-512 machine with the same decisions and scores)."""
     from autotune.learner.agents import TrainingAgents
 
     config = _small_training_config(other_agents=10, temporal_window=2, layers="", method="adagrad",
@@ -565,7 +565,8 @@ def test_blind_agents_are_answered_inside_the_simulator_with_the_same_draws():
     weights = np.concatenate([p.detach().numpy().ravel() for p in r.module.parameters()])
     assert (r.agent_decisions, r.decisions, r.frames) == (18620, 2070, 62070)
     assert r.training_run_scores == [56.57, 59.28]
-    assert hashlib.sha256(weights.tobytes()).hexdigest()[:16] == "fe305255b07aa7e2"
+    summary = [float(weights.sum()), float(np.abs(weights).sum()), float((weights * weights).sum())]
+    np.testing.assert_allclose(summary, [-3.5407606, 27.722958, 4.9283082], rtol=1e-5)
     greedy = _small_training_config(other_agents=2, temporal_window=1, learning_steps_burnin=0, learning_steps_total=4)
     assert not TrainingAgents(greedy, DeepQLearner(greedy, 0), np.random.SeedSequence(1)).blind
 

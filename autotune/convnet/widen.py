@@ -27,11 +27,9 @@ from collections.abc import Iterable
 import numpy as np
 
 from autotune.convnet import spec
-from autotune.convnet.spec import FC, ConvNet, NetSpecError
+from autotune.convnet.spec import FC, NUM_ACTIONS, ConvNet, NetSpecError
 
 __all__ = ["View", "covers", "union", "widen_linear"]
-
-NUM_ACTIONS = 5
 
 View = tuple[int, int, int]
 """(lanes_side, patches_ahead, patches_behind) of a DeepTraffic view."""

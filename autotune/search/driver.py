@@ -971,9 +971,9 @@ class Driver:
         config = TrainConfig.from_mapping(best.user_attrs[keys.CONFIG])
         if config.layers:  # a stack of k: its config has every hidden width × k, so it refines as it is stored
             config = config.replace(layers=stack.stacked_hidden(config.layers, len(ingredients)))
-        else:  # nets of several views (seed_soup_views) are souped on the union of their views
-            lanes, ahead, behind = widen.union(ensemble.view_of(trials[n].user_attrs[keys.CONFIG]) for n in ingredients)
-            config = config.replace(lanes_side=lanes, patches_ahead=ahead, patches_behind=behind)
+        else:  # nets of several views (seed_soup_views) are souped on the union of their views (``_soup_net``)
+            wide = widen.union(ensemble.view_of(trials[n].user_attrs[keys.CONFIG]) for n in ingredients)
+            config = config.replace(**dict(zip(ensemble.VIEW_FIELDS, wide, strict=True)))
         self.study.enqueue_trial(dict(best.params), user_attrs={
             keys.CONFIG: config.to_mapping(), keys.REFINE_OF: refine.Parent(number, None, score).to_attr(),
             keys.SOUP_OF: list(ingredients), keys.SEED_SOUP_OF: owner,
@@ -1125,23 +1125,22 @@ class Driver:
         trials = self.study.get_trials(deepcopy=False)
         return self._launch_race_run(slot, trials, config, run, keys.SEED_SOUP_RUN, keys.SEED_LEADER_RUN)
 
-    def _soup_net(self, ingredients: list[int], stacked: bool = False) -> str:
+    def _soup_net(self, ingredients: list[int], stacked: bool = False, config: TrainConfig | None = None) -> str:
         """The convnetjs Net JSON of the weight soup of ``ingredients``' stored nets; ``stacked`` (a seed soup): their
-        ensemble (``stack.stack_nets``: the mean of their weights without hidden layers, else side by side), linear
-        nets of several views moved onto the union of their views first (``widen.widen_linear``)."""
+        ensemble (``stack.stack_nets``: the mean of their weights without hidden layers, else side by side). Given
+        the soup's ``config`` without hidden layers, each net is first moved onto its view (``widen.widen_linear``;
+        the union of theirs with ``seed_soup_views``, a net of that view itself)."""
         assert self.study is not None
         texts = [(int(n), self._parent_net(refine.Parent(int(n), None, 0.0))) for n in ingredients]
         combine = stack.stack_nets if stacked else soup.average_nets
         try:
             nets = [loads_net(text, where=f"trial {n}") for n, text in texts]
-            if stacked:
+            if stacked and config is not None and not config.layers:
                 trials = self.study.get_trials(deepcopy=False)
-                configs = [TrainConfig.from_mapping(trials[n].user_attrs[keys.CONFIG]) for n, _ in texts]
-                views = [(c.lanes_side, c.patches_ahead, c.patches_behind) for c in configs]
-                if len(set(views)) > 1:
-                    wide = widen.union(views)
-                    nets = [widen.widen_linear(net, view, wide, c.temporal_window)
-                            for net, view, c in zip(nets, views, configs, strict=True)]  # fmt: skip
+                views = [ensemble.view_of(trials[n].user_attrs[keys.CONFIG]) for n, _ in texts]
+                wide = ensemble.view_of(config)
+                nets = [widen.widen_linear(net, view, wide, config.temporal_window)
+                        for net, view in zip(nets, views, strict=True)]  # fmt: skip
             return dumps_net(combine(nets))
         except ConfigError as exc:
             raise _Refused(f"weight soup: {exc}") from None
@@ -1387,7 +1386,7 @@ class Driver:
                 rungs: tuple[int, ...] = (config.train_iterations,) if race and self.spec.ladder else ()
                 ingredients = trial.user_attrs.get(keys.SOUP_OF)
                 if ingredients is not None:
-                    init_net = self._soup_net(ingredients, keys.SEED_SOUP_OF in trial.user_attrs)
+                    init_net = self._soup_net(ingredients, keys.SEED_SOUP_OF in trial.user_attrs, config)
                 elif refine_of is not None:
                     init_net = self._parent_net(refine.Parent.from_attr(refine_of))
                 cost = self._model().predict(config, screened=False)  # measured with its own ε_test

@@ -39,6 +39,7 @@ neighbours (``autotune.search.twins``) soup with it.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Iterable, Mapping, Sequence
@@ -52,8 +53,9 @@ from autotune.search.soup import next_soup
 from sim.config import ConfigError
 
 __all__ = [
-    "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "STACK_SPAN", "is_linear", "family_key", "view_of", "seed_nets",
-    "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run", "best_net_configs", "contender_configs",
+    "SeedSoup", "STACK_SEED_RUNS", "MAX_STACK_NEURONS", "STACK_SPAN", "is_linear", "family_key", "VIEW_FIELDS",
+    "view_of", "seed_nets", "seed_groups", "next_seed_soup", "greedy_step", "next_seed_run", "best_net_configs",
+    "contender_configs",
 ]  # fmt: skip
 
 STACK_SEED_RUNS = 12
@@ -106,15 +108,22 @@ def family_key(config: Mapping[str, Any] | None, views: bool = False) -> tuple[A
         c = TrainConfig.from_mapping(config)
     except (ConfigError, TypeError, ValueError):
         return None
-    engine = c.engine_config
-    view = () if views else (engine.lanes_side, engine.patches_ahead, engine.patches_behind)
-    return (engine.ruleset, *view, engine.other_agents, c.temporal_window, c.epsilon_test_time)
+    engine = dataclasses.asdict(c.engine_config)
+    if views:
+        for name in VIEW_FIELDS:
+            del engine[name]
+    return (*engine.values(), c.temporal_window, c.epsilon_test_time)
 
 
-def view_of(config: Mapping[str, Any]) -> View:
-    """(lanes_side, patches_ahead, patches_behind) of a stored config (``keys.CONFIG``)."""
-    c = TrainConfig.from_mapping(config)
-    return (c.lanes_side, c.patches_ahead, c.patches_behind)
+VIEW_FIELDS = ("lanes_side", "patches_ahead", "patches_behind")
+"""The settings of a DeepTraffic view (``widen.View``'s order)."""
+
+
+def view_of(config: Mapping[str, Any] | TrainConfig) -> View:
+    """(lanes_side, patches_ahead, patches_behind) of a config or a stored one (``keys.CONFIG``)."""
+    c = config if isinstance(config, TrainConfig) else TrainConfig.from_mapping(config)
+    lanes, ahead, behind = (int(getattr(c, name)) for name in VIEW_FIELDS)
+    return (lanes, ahead, behind)
 
 
 Groups = dict[int, list[tuple[int, float]]]

@@ -574,6 +574,23 @@ def test_race_entrants_are_distinct_configurations() -> None:
     assert [e.number for e in field] == [1, 2]
 
 
+def test_configurations_measured_on_fresh_seeds_join_the_race_by_their_mean() -> None:
+    """``field_order``: the provisional leader (the best mean over 3+ fresh seeds) first, the configurations with
+    fewer seeds by their selecting score, the other measured ones last: a configuration does not enter on its
+    luckiest seed once its fresh seeds measured it (seed 1's hour: 75.10 selecting, 150 seeds at 70.9)."""
+    cfg = {n: {"x": n} for n in range(7)}
+    values = (73.0, 75.1, 74.3, 73.25, 74.6, 74.4, 74.9)
+    candidates = [(n, v, cfg[2 if n == 6 else n]) for n, v in enumerate(values)]  # 6: trial 2's configuration
+    results: dict[tuple[int, int], float | None] = {(1, s): 70.9 + (s % 3 - 1) for s in range(150)}
+    results |= {(2, s): v for s, v in enumerate((72.5, 72.9, 72.6, 74.3, 73.9))}  # mean 73.24
+    results |= {(3, s): v for s, v in enumerate((74.0, 72.6, 72.6, None))}  # 3 scores: mean 73.07
+    results |= {(0, 0): 76.0, (0, 1): 75.0, (5, 0): None}  # 2 seeds: not yet measured, ranks by its 73.0
+    assert [e.number for e in racing.entrants(candidates, 4)] == [1, 6, 4, 5]  # by selecting score alone
+    order = racing.field_order(candidates, results)
+    assert [e.number for e in order] == [2, 4, 5, 0, 3, 1]  # 6 is trial 2's configuration: it races once
+    assert [e.number for e in racing.field_order(candidates, {})] == [1, 6, 4, 5, 3, 0]  # nothing measured
+
+
 def test_race_halves_the_field_each_round() -> None:
     field = [10, 11, 12, 13]
     runs, over = racing.next_runs(field, {}, set(), 1)
@@ -1033,6 +1050,23 @@ def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -
     assert one._race_state()[0] == [0]  # noqa: SLF001 - on one worker 3 would run after 0, past the deadline
     _left(one, (cost[0] + cost[2]) * RACE_MARGIN * 1.01)
     assert one._race_field()[0] == [0, 2]  # noqa: SLF001 - 3 (65.0) does not fit after 0, the cheaper 2 does
+
+
+def test_the_provisional_leader_enters_the_race_though_its_selecting_score_is_lower(tmp_path: Path) -> None:
+    """The driver's field: trial 2 (selected at 60.0), whose three fresh seed runs average 71.0, enters first, then
+    the best selecting score (trial 1, 72.0); before its seeds it did not enter at all."""
+    driver, _cost = _race_driver(tmp_path, "lead", workers=2)
+    _left(driver, 3600.0)
+    assert driver._race_field()[0] == [1, 0]  # noqa: SLF001
+    assert driver.study is not None
+    chosen = driver.study.trials[2]
+    for seed, value in enumerate((70.0, 71.5, 71.5)):
+        driver.study.add_trial(optuna.trial.create_trial(
+            params=chosen.params, distributions=chosen.distributions, value=value,
+            user_attrs={keys.CONFIG: chosen.user_attrs[keys.CONFIG], keys.SEED: 100 + seed, keys.RACE_OF: 2,
+                        keys.RACE_SEED: seed, keys.SEED_SOUP_RUN: True},
+        ))  # fmt: skip
+    assert driver._race_field()[0] == [2, 1]  # noqa: SLF001
 
 
 def test_an_entrant_too_long_for_the_time_left_races_at_a_lower_rung(tmp_path: Path) -> None:

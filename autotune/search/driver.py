@@ -578,12 +578,15 @@ class Driver:
 
         Planned so that the first round finishes: an entrant whose run, padded by ``RACE_MARGIN``, would not fit
         the time left races at the highest lower rung (``race_min_budget`` or above) that does, or not at all;
-        and entrants join in rank order while the round's runs, spread over the workers, fit the time left — a
+        and entrants join in ``racing.field_order`` (the leader by mean over fresh seeds first, the measured others
+        last) while
+        the round's runs, spread over the workers, fit the time left — a
         run the deadline stops scores nothing after taking a worker (measured: a 10-minute study's only entrant
         raced at 810k, predicted just under the 143 s left, took 147 s, and both its runs were lost)."""
         assert self.study is not None
         left = self._time_left()
-        ran = {n for (n, _s) in self._race_results()[1]}  # the incumbent's runs: at its entry's own budget
+        results, launched = self._race_results()
+        ran = {n for (n, _s) in launched}  # the incumbent's runs: at its entry's own budget
         candidates, budgets, costs = [], {}, {}
         for t in self.study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
             entry = race_entry(t, self.spec.race_min_budget) if _original(t) else None
@@ -594,7 +597,7 @@ class Driver:
         seeds, workers = self.spec.study.race_seeds, max(1, self.spec.resources.workers)
         field: list[int] = []
         load = 0.0  # worker-seconds of the first round so far
-        for e in racing.entrants(candidates, len(candidates)):
+        for e in racing.field_order(candidates, results):
             need = seeds * costs[e.number]
             if field and (load + need) / workers * RACE_MARGIN > left:
                 continue  # a cheaper entrant further down may still fit

@@ -575,20 +575,24 @@ def test_race_entrants_are_distinct_configurations() -> None:
 
 
 def test_configurations_measured_on_fresh_seeds_join_the_race_by_their_mean() -> None:
-    """``field_order``: the provisional leader (the best mean over 3+ fresh seeds) first, the configurations with
-    fewer seeds by their selecting score, the other measured ones last: a configuration does not enter on its
-    luckiest seed once its fresh seeds measured it (seed 1's hour: 75.10 selecting, 150 seeds at 70.9)."""
+    """``field_order``: the provisional leader (the best mean over 3+ fresh seeds) first; then a measured
+    configuration by its fresh mean, one measured less by its selecting score less the measured ones' median
+    optimism: none enters on its luckiest seed once its fresh seeds measured it (seed 1's hour: 75.10 selecting,
+    150 seeds at 70.9)."""
     cfg = {n: {"x": n} for n in range(7)}
-    values = (73.0, 75.1, 74.3, 73.25, 74.6, 74.4, 74.9)
+    values = (74.0, 75.1, 74.3, 73.25, 74.6, 74.4, 74.9)
     candidates = [(n, v, cfg[2 if n == 6 else n]) for n, v in enumerate(values)]  # 6: trial 2's configuration
-    results: dict[tuple[int, int], float | None] = {(1, s): 70.9 + (s % 3 - 1) for s in range(150)}
+    results: dict[tuple[int, int], float | None] = {(1, s): 70.9 + (s % 3 - 1) for s in range(150)}  # mean 70.9
     results |= {(2, s): v for s, v in enumerate((72.5, 72.9, 72.6, 74.3, 73.9))}  # mean 73.24
     results |= {(3, s): v for s, v in enumerate((74.0, 72.6, 72.6, None))}  # 3 scores: mean 73.07
-    results |= {(0, 0): 76.0, (0, 1): 75.0, (5, 0): None}  # 2 seeds: not yet measured, ranks by its 73.0
+    results |= {(0, 0): 76.0, (0, 1): 75.0, (5, 0): None}  # 2 seeds: not yet measured, ranks by its 74.0
     assert [e.number for e in racing.entrants(candidates, 4)] == [1, 6, 4, 5]  # by selecting score alone
+    # optimism: the median of 4.2, 1.06 and 0.18 = 1.06, so 4 ranks at 73.54, 5 at 73.34 and 0 at 72.94
     order = racing.field_order(candidates, results)
-    assert [e.number for e in order] == [2, 4, 5, 0, 3, 1]  # 6 is trial 2's configuration: it races once
-    assert [e.number for e in racing.field_order(candidates, {})] == [1, 6, 4, 5, 3, 0]  # nothing measured
+    assert [e.number for e in order] == [2, 4, 5, 3, 0, 1]  # 6 is trial 2's configuration: it races as 2
+    results |= {(3, s): 74.5 for s in range(4, 8)}  # 3's mean 73.89 now leads; 2 (73.24) ranks below 4 and 5
+    assert [e.number for e in racing.field_order(candidates, results)] == [3, 4, 5, 2, 0, 1]
+    assert [e.number for e in racing.field_order(candidates, {})] == [1, 6, 4, 5, 0, 3]  # nothing measured
 
 
 def test_race_halves_the_field_each_round() -> None:

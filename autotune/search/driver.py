@@ -578,8 +578,8 @@ class Driver:
 
         Planned so that the first round finishes: an entrant whose run, padded by ``RACE_MARGIN``, would not fit
         the time left races at the highest lower rung (``race_min_budget`` or above) that does, or not at all;
-        and entrants join in ``racing.field_order`` (the leader by mean over fresh seeds first, the measured others
-        last) while
+        and entrants join in ``racing.field_order`` (the leader by mean over fresh seeds first, then by their
+        fresh mean or their selecting score less the study's optimism) while
         the round's runs, spread over the workers, fit the time left — a
         run the deadline stops scores nothing after taking a worker (measured: a 10-minute study's only entrant
         raced at 810k, predicted just under the 143 s left, took 147 s, and both its runs were lost)."""

@@ -157,21 +157,28 @@ def field_order(
 ) -> list[Entrant]:
     """The race's candidates (trial number, selecting score, config) in the order they join the field.
 
-    First the provisional leader (``provisional_standings`` over ``results``: the best mean over at least
-    ``min_seeds`` fresh seeds, the pick ``autotune best`` shows before the race); then the configurations with
-    fewer fresh seeds, by their selecting score; the other measured ones last, by their mean. Why: a selecting
-    score is a best-of-many, a fresh mean is not, and a configuration whose fresh seeds already measured it must
-    not enter by its luckiest one. A crowd-prior hour (study seed 1) raced a linear neighbour on its selecting
-    75.10 although its 150 seed runs averaged 70.9; it tied its rival on the race's 4 seeds, won on their mean,
-    and averaged 70.23 on 3 fresh seeds, while the leader, gsurma's setting at 73.2 over 5 seeds, never raced.
-    The leader's seed runs are race runs, so it enters at no cost, and the race replaces the pick only by beating
-    it on the same seeds. One place, not more: the unmeasured candidates are where a race finds a better one (seed
-    0's hour crowned a configuration with one fresh seed at its start: 74.99 over 24, 75.33 on 3 fresh ones)."""
+    A configuration measured on ``min_seeds`` fresh seeds or more (``provisional_standings`` over ``results``)
+    ranks by its fresh mean; one measured less, by its selecting score less the study's optimism (the median, over
+    the measured ones, of selecting score minus fresh mean; 0 while none is measured); the measured leader (the
+    pick ``autotune best`` shows before the race) comes first whatever the others' estimates. Why: a selecting
+    score is a best-of-many, a fresh mean is not. A crowd-prior hour (study seed 1) raced a linear neighbour on its
+    selecting 75.10 although its 150 seed runs averaged 70.9; it tied its rival on the race's 4 seeds, won on
+    their mean, and averaged 70.23 on 3 fresh seeds, while the leader, gsurma's setting at 73.2 over 5 seeds,
+    never raced. The leader's seed runs are race runs, so it enters at no cost, and the race replaces the pick
+    only by beating it on the same seeds."""
     pool = {c[0]: c for c in candidates}
-    measured = [pool[st.number] for st in provisional_standings(results, min_seeds) if st.number in pool]
-    seeded = {c[0] for c in measured}
-    rest = sorted((c for c in pool.values() if c[0] not in seeded), key=lambda c: (-c[1], c[0]))
-    return entrants([*measured[:1], *rest, *measured[1:]], len(pool), ordered=True)
+    measured = [st for st in provisional_standings(results, min_seeds) if st.number in pool]
+    means = {st.number: st.mean for st in measured}
+    optimism = statistics.median(pool[n][1] - m for n, m in means.items()) if means else 0.0
+    # one configuration, several trials (a crowd setting and a twin alike): it races as its measured trial, the
+    # one whose seeds the race reuses, else as its best-scored
+    by_key: dict[str, tuple[int, float, Mapping[str, Any]]] = {}
+    for c in sorted(pool.values(), key=lambda c: (c[0] not in means, -c[1], c[0])):
+        by_key.setdefault(config_key(c[2]), c)
+    estimate = {c[0]: means.get(c[0], c[1] - optimism) for c in by_key.values()}
+    leader = measured[0].number if measured else None
+    order = sorted(by_key.values(), key=lambda c: (c[0] != leader, -estimate[c[0]], c[0]))
+    return entrants(order, len(order), ordered=True)
 
 
 def signed_rank(a: Sequence[float], b: Sequence[float]) -> float:

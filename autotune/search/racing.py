@@ -131,15 +131,11 @@ def config_key(config: Mapping[str, Any]) -> str:
     return json.dumps(config, sort_keys=True, separators=(",", ":"))
 
 
-def entrants(
-    candidates: Iterable[tuple[int, float, Mapping[str, Any]]], n: int, *, ordered: bool = False
-) -> list[Entrant]:
-    """The best ``n`` distinct configurations among (trial number, value, config), best first (``ordered``: in
-    the given order instead)."""
+def entrants(candidates: Iterable[tuple[int, float, Mapping[str, Any]]], n: int) -> list[Entrant]:
+    """The best ``n`` distinct configurations among (trial number, value, config), best first."""
     seen: set[str] = set()
     out: list[Entrant] = []
-    order = list(candidates) if ordered else sorted(candidates, key=lambda c: (-c[1], c[0]))
-    for number, value, config in order:
+    for number, value, config in sorted(candidates, key=lambda c: (-c[1], c[0])):
         key = config_key(config)
         if key in seen or not math.isfinite(value):
             continue
@@ -166,19 +162,22 @@ def field_order(
     their mean, and averaged 70.23 on 3 fresh seeds, while the leader, gsurma's setting at 73.2 over 5 seeds,
     never raced. The leader's seed runs are race runs, so it enters at no cost, and the race replaces the pick
     only by beating it on the same seeds."""
-    pool = {c[0]: c for c in candidates}
+    pool = {c[0]: c for c in candidates if math.isfinite(c[1])}
     measured = [st for st in provisional_standings(results, min_seeds) if st.number in pool]
     means = {st.number: st.mean for st in measured}
     optimism = statistics.median(pool[n][1] - m for n, m in means.items()) if means else 0.0
     # one configuration, several trials (a crowd setting and a twin alike): it races as its measured trial, the
     # one whose seeds the race reuses, else as its best-scored
-    by_key: dict[str, tuple[int, float, Mapping[str, Any]]] = {}
-    for c in sorted(pool.values(), key=lambda c: (c[0] not in means, -c[1], c[0])):
-        by_key.setdefault(config_key(c[2]), c)
-    estimate = {c[0]: means.get(c[0], c[1] - optimism) for c in by_key.values()}
+    by_key: dict[str, Entrant] = {}
+    for number, value, config in sorted(pool.values(), key=lambda c: (c[0] not in means, -c[1], c[0])):
+        key = config_key(config)
+        by_key.setdefault(key, Entrant(number, float(value), key))
     leader = measured[0].number if measured else None
-    order = sorted(by_key.values(), key=lambda c: (c[0] != leader, -estimate[c[0]], c[0]))
-    return entrants(order, len(order), ordered=True)
+
+    def rank(e: Entrant) -> tuple[bool, float, int]:
+        return e.number != leader, -means.get(e.number, e.value - optimism), e.number
+
+    return sorted(by_key.values(), key=rank)
 
 
 def signed_rank(a: Sequence[float], b: Sequence[float]) -> float:

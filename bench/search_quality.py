@@ -30,6 +30,12 @@ same seeds for every arm, after the arm's budget, timed apart — and for ``warm
 was not enqueued (no ``warm_start``). ``--reference`` (a crowd submission id, default gsurma's, the
 best v2 crowd setting our sgd learner replays) is retrained with the same seeds.
 
+``--held-out`` (default ``1000000,2000000``; ``none`` skips): each checkpoint's best single net is scored again
+on runs the official protocol never plays — the ``custom`` protocol, ``--held-out-runs`` (500) runs seeded from
+each given seed — because the best net is a best-of-many over one fixed set of 500 official runs (seeded 1…500):
+the crowd-prior hours' best soups scored 0.2–0.3 mph higher on such runs than officially, jnorthrup-v05's net
+0.05 lower. Arms whose studies store no nets (the plain loop, random) have none to score.
+
 Per run, from the trial records: the cost model's median |actual − predicted| / actual over the
 COMPLETE trials that stored ``predicted_cost_s`` before training; the share of worker time (workers ×
 the arm's wall) spent in trials stopped by a limit (cause ``timeout…``); the worst trial wall time /
@@ -80,6 +86,8 @@ sys.path.insert(0, str(ROOT))
 ARMS = ("plain", "random", "cold", "warm")
 SEEDED_ARMS = ("plain", "cold")  # --study-seeds repeats these; the others run with the first seed
 FRESH_SEED0 = 900_001  # fresh seeds FRESH_SEED0 + i, the same for every arm (no study draws them)
+HELD_OUT_SEEDS = (1_000_000, 2_000_000)  # `custom` protocol seeds: runs seeded s … s + runs − 1, never official ones
+HELD_OUT_RUNS = 500  # runs per held-out set: the official protocol's number
 REFERENCE_ID = "dt-gsurma-deep-traffic-v00"
 LAYOUT = ("n_layers", "neurons", "activation")
 # train length the plain loop searches when the spec has neither it nor a [ladder] (paper.toml's old range)
@@ -852,9 +860,17 @@ def arm_checkpoints(runs: Sequence[Mapping[str, Any]], minutes: Sequence[float])
                 "reseed_mean_median": median(c.get("reseed_mean") for c in cps),
                 "reseed_means": [c.get("reseed_mean") for c in cps],
                 "best_not_enqueued_median": median(c["best_not_enqueued"] for c in cps),
+                "best_held_out": [c.get("best_held_out") for c in cps],
             }
         )
     return out
+
+
+def _held_out_text(scores: Any) -> str:
+    """A best net's held-out scores for the table: " (held out a / b)", why none could be read, or nothing."""
+    if isinstance(scores, list) and scores:
+        return " (held out " + " / ".join(_f(x) for x in scores) + ")"
+    return f" (held out: {scores})" if isinstance(scores, str) else ""
 
 
 def rung_correlations(configs: Sequence[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
@@ -1087,6 +1103,42 @@ def reseed_scores(key: str, seeds: Sequence[int], cache: Mapping[str, Mapping[st
     }
 
 
+def held_out_scores(
+    journal: Path, study_name: str, nets: Iterable[tuple[int, int | None]], seeds: Sequence[int], runs: int
+) -> dict[tuple[int, int | None], list[float] | str]:
+    """Per (trial, kept rung or None) of ``nets``: its stored net's site median on ``runs`` runs of the ``custom``
+    protocol from each of ``seeds``, scored as the study scored it (``records.stored_net``: a rung's own ε_test);
+    where the net cannot be read, why (one line)."""
+    from autotune.learner.official import evaluate_official
+    from autotune.search.records import RecordError, read_study, stored_net
+    from autotune.search.storage import open_storage
+
+    storages = open_storage(str(journal), study_name, heartbeat=False, read_only=True)
+    study = read_study(storages, study_name)
+    out: dict[tuple[int, int | None], list[float] | str] = {}
+    for number, budget in dict.fromkeys(nets):
+        try:
+            net, config = stored_net(storages, study.trials[number], budget)
+        except RecordError as exc:
+            out[(number, budget)] = str(exc).splitlines()[0]
+            continue
+        out[(number, budget)] = [
+            float(evaluate_official(net, config, seed=s, protocol="custom", runs=runs).median_site) for s in seeds
+        ]
+    return out
+
+
+def add_held_out(run: dict[str, Any], seeds: Sequence[int], runs: int) -> None:
+    """Each checkpoint of a service arm's ``run`` gets ``best_held_out`` (``held_out_scores`` of its best net)."""
+    picks = [(c["best_trial"], c["best_rung"]) for c in run["checkpoints"] if c.get("best_trial") is not None]
+    if not seeds or not picks:
+        return
+    scores = held_out_scores(Path(run["storage"]), run["study"], picks, seeds, runs)
+    for c in run["checkpoints"]:
+        if c.get("best_trial") is not None:
+            c["best_held_out"] = scores[(c["best_trial"], c["best_rung"])]
+
+
 def run_arm(arm: str, seed: int, args: argparse.Namespace, ctx: dict[str, Any]) -> dict[str, Any]:
     """One run of one arm: start it, wait out its budget, read its study back."""
     run_dir = ctx["out"] / f"{arm}-s{seed}"
@@ -1255,7 +1307,8 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
             lines.append(f"{arm:<7} skipped: {body['skipped']}")
             continue
         for cp in body["checkpoints"]:
-            per_run = ", ".join(_f(b) for b in cp["best_runs"])
+            held = cp.get("best_held_out") or [None] * len(cp["best_runs"])
+            per_run = ", ".join(_f(b) + _held_out_text(h) for b, h in zip(cp["best_runs"], held, strict=True))
             lines.append(
                 f"{arm:<7} {cp['runs']:>4} {cp['minutes']:>5g} {_f(cp['best_median']):>7} "
                 f"{_f(cp['reseed_mean_median']):>12} {_f(cp['best_not_enqueued_median']):>13}  {per_run}"
@@ -1344,6 +1397,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--reference", default=REFERENCE_ID, help="crowd submission retrained on the fresh seeds ('none' to skip)"
     )
+    p.add_argument(
+        "--held-out",
+        default=",".join(str(s) for s in HELD_OUT_SEEDS),
+        help="custom-protocol seeds on which each checkpoint's best net is scored again ('none' to skip)",
+    )
+    p.add_argument("--held-out-runs", type=int, default=HELD_OUT_RUNS, help="runs per held-out seed (default 500)")
     p.add_argument("--calibration", type=int, default=30, help="configurations in the calibration set (0: none)")
     p.add_argument("--calibration-cap", type=float, default=None, metavar="S", help="trial cost cap of the set [s]")
     p.add_argument("--calibration-seed", type=int, default=14)
@@ -1371,6 +1430,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         raise BenchError("--study-seeds: give at least one seed, e.g. 0")
     if args.workers < 1 or args.reseeds < 0 or args.calibration < 0:
         raise BenchError("--workers must be ≥ 1, --reseeds and --calibration ≥ 0")
+    try:
+        args.held_out_seeds = [] if args.held_out == "none" else [int(x) for x in args.held_out.split(",") if x.strip()]
+    except ValueError:
+        raise BenchError(f"--held-out {args.held_out}: expected comma-separated integers, e.g. 1000000,2000000, "
+                         "or none") from None  # fmt: skip
+    if any(s < 0 for s in args.held_out_seeds) or args.held_out_runs < 1:
+        raise BenchError("--held-out seeds must be ≥ 0 and --held-out-runs ≥ 1")
     return args
 
 
@@ -1419,6 +1485,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if c["chosen_config"] is not None
             }
             run["reseed_wall_s"] = reseed(configs, fresh, cache, args.workers) if fresh else 0.0
+            if arm not in ("plain", "random"):  # the service stores every scored net
+                add_held_out(run, args.held_out_seeds, args.held_out_runs)
             for c in run["checkpoints"]:
                 config = c.pop("chosen_config")
                 if config is not None and fresh:

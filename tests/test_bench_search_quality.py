@@ -480,3 +480,61 @@ def test_refinement_runs_count_as_nets_not_as_picks() -> None:
     figures = sq.refine_figures(rows, 400.0)
     assert figures == {"refine_runs": 4, "refine_soups": 1, "refine_share": pytest.approx(0.2), "refine_best": 75.4,
                        "refine_root": 0}  # fmt: skip
+
+
+# -- held-out scores of the best nets -----------------------------------------------------------
+
+
+def test_held_out_scores_rescore_the_stored_net_on_unplayed_runs(tmp_path: Path) -> None:
+    """``held_out_scores``: a trial's stored net (its value's, or a kept rung's with that rung's ε_test) scored on the
+    ``custom`` protocol's runs from each seed, exactly as ``evaluate_official`` scores it there; a trial without a
+    stored net gives its one-line cause; ``add_held_out`` and the table carry them per checkpoint."""
+    from autotune.convnet.netjson import dumps_net, loads_net
+    from autotune.learner.official import evaluate_official
+    from autotune.learner.training import train
+    from autotune.search import keys
+    from autotune.search.ladder import trained_rung_config
+    from autotune.search.storage import open_storage
+
+    config = TrainConfig.from_mapping({**TINY, "train_iterations": 300})
+    text = dumps_net(train(config, seed=3, quick_eval=False).convnet())
+    journal, name = tmp_path / "journal.log", "sq-warm-s0"
+    storages = open_storage(str(journal), name, heartbeat=False)
+    study = optuna.create_study(study_name=name, storage=storages.storage, direction="maximize")
+    (tmp_path / "net.json").write_text(text)
+    artifact = optuna.artifacts.upload_artifact(artifact_store=storages.artifacts, file_path=str(tmp_path / "net.json"),
+                                                study_or_trial=study)  # fmt: skip
+    rungs = [{keys.BUDGET: 100, keys.SEED: 4, "score": 61.0, keys.EPSILON_TEST: 0.45}]
+    study.add_trial(optuna.trial.create_trial(value=60.0, user_attrs={
+        keys.CONFIG: config.to_mapping(), keys.ARTIFACT_NET_JSON: artifact, keys.RUNGS: rungs,
+        keys.ARTIFACT_RUNG_NETS: {"100": artifact}}))  # fmt: skip
+    study.add_trial(optuna.trial.create_trial(value=59.0, user_attrs={keys.CONFIG: config.to_mapping()}))
+
+    got = sq.held_out_scores(journal, name, [(0, None), (0, 100), (1, None), (0, None)], [1_000_000, 7], 4)
+    net = loads_net(text)
+    want = [evaluate_official(net, config, seed=s, protocol="custom", runs=4).median_site for s in (1_000_000, 7)]
+    assert got[(0, None)] == want
+    rung = trained_rung_config(config, 100, rungs)  # as the rung scored it: its ε_test 0.45, not the config's 0
+    assert rung.epsilon_test_time == 0.45
+    assert got[(0, 100)] == [evaluate_official(net, rung, seed=s, protocol="custom", runs=4).median_site
+                             for s in (1_000_000, 7)]  # fmt: skip
+    assert got[(0, 100)] != want
+    assert "no trained network stored" in got[(1, None)]
+    assert list(got) == [(0, None), (0, 100), (1, None)]  # in order, once each
+
+    checkpoints: list[dict[str, Any]] = [
+        {"best_trial": 0, "best_rung": None, "best": 60.0},
+        {"best_trial": None, "best_rung": None, "best": None},
+    ]
+    sq.add_held_out({"storage": str(journal), "study": name, "checkpoints": checkpoints}, [1_000_000, 7], 4)
+    assert checkpoints[0]["best_held_out"] == want and "best_held_out" not in checkpoints[1]
+    assert sq._held_out_text(want) == f" (held out {want[0]:.2f} / {want[1]:.2f})"
+    assert sq._held_out_text("trial 1: no net") == " (held out: trial 1: no net)" and sq._held_out_text(None) == ""
+
+
+def test_held_out_options() -> None:
+    assert sq.parse_args([]).held_out_seeds == list(sq.HELD_OUT_SEEDS)
+    assert sq.parse_args(["--held-out", "none"]).held_out_seeds == []
+    for bad in (["--held-out", "1e6"], ["--held-out", "-1"], ["--held-out-runs", "0"]):
+        with pytest.raises(sq.BenchError):
+            sq.parse_args(bad)

@@ -54,6 +54,7 @@ __all__ = [
     "rescore_trial",
     "retrain_trial",
     "soup_net",
+    "stored_net",
     "race_setup",
     "race_summary",
     "study_resources",
@@ -481,8 +482,11 @@ def export_best_net(storages: Storages, study_name: str, out_dir: str | Path) ->
     return _export(storages, study.trials[found["trial"]], out_dir, budget=found["budget"])
 
 
-def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path, budget: int | None = None) -> dict[str, Path]:
-    from autotune import TrainConfig, export_netjs, loads_net, write_net
+def stored_net(storages: Storages, trial: TrialRecord, budget: int | None = None) -> tuple[Any, Any]:
+    """Trial ``trial``'s stored net (``budget`` None: its value's; else its kept rung's) and the ``TrainConfig`` it
+    was scored with (a rung's: its budget, the ε schedule scaled to it and the ε_test it chose,
+    ``autotune.search.ladder.trained_rung_config``); ``RecordError`` when either is not stored."""
+    from autotune import TrainConfig, loads_net
     from autotune.search.ladder import trained_rung_config
 
     text = net_text(storages, trial.number, trial.user_attrs, budget)
@@ -491,7 +495,14 @@ def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path, budget:
     net = loads_net(text, where=f"trial {trial.number} net.json")
     config = TrainConfig.from_mapping(trial.user_attrs[keys.CONFIG])
     rungs = trial.user_attrs.get(keys.RUNGS)
-    settings = (config if budget is None else trained_rung_config(config, budget, rungs)).settings
+    return net, (config if budget is None else trained_rung_config(config, budget, rungs))
+
+
+def _export(storages: Storages, trial: TrialRecord, out_dir: str | Path, budget: int | None = None) -> dict[str, Path]:
+    from autotune import export_netjs, write_net
+
+    net, config = stored_net(storages, trial, budget)
+    settings = config.settings
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"net.json": out / "net.json", "net.config.json": out / "net.config.json", "net.js": out / "net.js"}

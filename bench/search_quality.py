@@ -1108,18 +1108,23 @@ def held_out_scores(
 ) -> dict[tuple[int, int | None], list[float] | str]:
     """Per (trial, kept rung or None) of ``nets``: its stored net's site median on ``runs`` runs of the ``custom``
     protocol from each of ``seeds``, scored as the study scored it (``records.stored_net``: a rung's own ε_test);
-    where the net cannot be read, why (one line)."""
+    where the study or the net cannot be read, why (one line): an arm's figures are never lost to this score."""
     from autotune.learner.official import evaluate_official
-    from autotune.search.records import RecordError, read_study, stored_net
+    from autotune.search.records import read_study, stored_net
     from autotune.search.storage import open_storage
+    from sim.config import ConfigError
 
-    storages = open_storage(str(journal), study_name, heartbeat=False, read_only=True)
-    study = read_study(storages, study_name)
+    picks = list(dict.fromkeys(nets))
+    try:
+        storages = open_storage(str(journal), study_name, heartbeat=False, read_only=True)
+        study = read_study(storages, study_name)
+    except ConfigError as exc:
+        return dict.fromkeys(picks, str(exc).splitlines()[0])
     out: dict[tuple[int, int | None], list[float] | str] = {}
-    for number, budget in dict.fromkeys(nets):
+    for number, budget in picks:
         try:
             net, config = stored_net(storages, study.trials[number], budget)
-        except RecordError as exc:
+        except ConfigError as exc:  # not stored, or stored damaged
             out[(number, budget)] = str(exc).splitlines()[0]
             continue
         out[(number, budget)] = [

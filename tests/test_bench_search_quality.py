@@ -531,6 +531,10 @@ def test_held_out_scores_rescore_the_stored_net_on_unplayed_runs(tmp_path: Path)
     assert sq._held_out_text(want) == f" (held out {want[0]:.2f} / {want[1]:.2f})"
     assert sq._held_out_text("trial 1: no net") == " (held out: trial 1: no net)" and sq._held_out_text(None) == ""
 
+    # a study that cannot be read leaves every net its cause, not an exception that would lose the arm's figures
+    gone = sq.held_out_scores(tmp_path / "nowhere.log", name, [(0, None), (0, 100)], [7], 4)
+    assert list(gone) == [(0, None), (0, 100)] and all(isinstance(v, str) and v for v in gone.values())
+
 
 def test_held_out_options() -> None:
     assert sq.parse_args([]).held_out_seeds == list(sq.HELD_OUT_SEEDS)

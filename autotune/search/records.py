@@ -17,7 +17,7 @@ import math
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import optuna
 from optuna.artifacts import download_artifact
@@ -27,6 +27,10 @@ from optuna.trial import FrozenTrial, TrialState
 from autotune.search import keys
 from autotune.search.storage import Storages, UnknownStudyError, load_study, open_storage, study_names
 from sim.config import ConfigError
+
+if TYPE_CHECKING:
+    from autotune.convnet.spec import ConvNet
+    from autotune.learner.config import TrainConfig
 
 __all__ = [
     "STATES",
@@ -482,7 +486,7 @@ def export_best_net(storages: Storages, study_name: str, out_dir: str | Path) ->
     return _export(storages, study.trials[found["trial"]], out_dir, budget=found["budget"])
 
 
-def stored_net(storages: Storages, trial: TrialRecord, budget: int | None = None) -> tuple[Any, Any]:
+def stored_net(storages: Storages, trial: TrialRecord, budget: int | None = None) -> tuple[ConvNet, TrainConfig]:
     """Trial ``trial``'s stored net (``budget`` None: its value's; else its kept rung's) and the ``TrainConfig`` it
     was scored with (a rung's: its budget, the ε schedule scaled to it and the ε_test it chose,
     ``autotune.search.ladder.trained_rung_config``); ``RecordError`` when either is not stored."""

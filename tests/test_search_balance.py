@@ -143,6 +143,44 @@ def test_a_forced_layer_count_draw_models_its_trainer_method_on_its_own_trials()
     assert any("method" in asked and "learning_rate" in asked for _l, asked in own)
 
 
+def test_a_forced_view_draw_models_its_own_view_gamma_epsilon_and_rate_on_its_own_trials() -> None:
+    """``balance_values = {lanes_side = [2]}`` (an integer other than the layer count): a draw forced to that view
+    width takes the patches and the rate (``OWN_PARAMETERS["lanes_side"]``) from the trials with that width alone,
+    and the trainer method and layers from every trial's model; the width keeps its share."""
+    spec = _spec(balance=["lanes_side"], balance_values={"lanes_side": [2]}, balance_min_share=0.3)
+    assert spec.study.balance_values == (("lanes_side", (2,)),) and parse_spec(spec.to_dict()) == spec
+    sampler = make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0)
+    balanced = sampler.base  # type: ignore[attr-defined]
+    assert isinstance(balanced, BalancedSampler)
+    own: list[tuple[set[int], set[str]]] = []
+    shared: list[set[str]] = []
+    conditional, base = balanced._conditional, balanced._base  # noqa: SLF001
+    sample_own, sample_base = conditional.sample_relative, base.sample_relative
+
+    def spy_own(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+        own.append(({t.params["lanes_side"] for t in study._get_trials(deepcopy=False)}, set(search_space)))  # noqa: SLF001
+        return sample_own(study, trial, search_space)
+
+    def spy_base(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+        if balanced.forced(trial.number) is not None:
+            shared.append(set(search_space))
+        return sample_base(study, trial, search_space)
+
+    conditional.sample_relative = spy_own  # type: ignore[method-assign]
+    base.sample_relative = spy_base  # type: ignore[method-assign]
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    for _ in range(30):
+        trial = study.ask()
+        study.tell(trial, _greedy(space.sample(trial, spec)))
+    assert own and all(widths <= {2} for widths, _asked in own)
+    assert any({"patches_ahead", "learning_rate"} <= asked for _w, asked in own)
+    assert not any(asked & {"method", "n_layers", "lanes_side"} for _w, asked in own)
+    assert shared and any("method" in asked for asked in shared)
+    assert not any(asked & {"patches_ahead", "learning_rate"} for asked in shared)
+    widths = collections.Counter(t.params["lanes_side"] for t in study.trials)
+    assert widths[2] >= 0.3 * 30 - 1
+
+
 def _shared_optimum(params: dict[str, Any]) -> float:
     """``_greedy`` plus a view that is best for every method (lanes_side 2, patches_ahead 4)."""
     return _greedy(params) - 2.0 * (2 - params["lanes_side"]) - 2.0 * (4 - params["patches_ahead"])
@@ -195,8 +233,9 @@ def test_balance_is_checked_against_the_space() -> None:
     assert _spec().study.balance == ()
     bad = {
         "methd": "'methd' is not in [space]; did you mean 'method'",
-        "lanes_side": "is not a categorical",
-        "activation": "is not a categorical [space] parameter of its own",
+        "learning_rate": "is not a categorical or integer [space] parameter of its own",
+        "activation": "is not a categorical or integer [space] parameter of its own",
+        "neurons": "is not a categorical or integer [space] parameter of its own",
     }
     for name, message in bad.items():
         with pytest.raises(SpecError, match=r"\[study\] balance: .*" + re.escape(message)):

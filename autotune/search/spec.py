@@ -224,13 +224,14 @@ class StudySection:
     race_seeds: int = 1
     """Fresh seeds per configuration per race round (the same seeds for every configuration)."""
     balance: tuple[str, ...] = ()
-    """Categorical [space] parameters whose every value keeps balance_min_share of the sampled trials
-    (``autotune.search.balance``; e.g. ["method"]: TPE cannot starve a trainer method)."""
+    """[space] parameters whose every value (an integer one's named in balance_values) keeps balance_min_share of
+    the sampled trials (``autotune.search.balance``; e.g. ["method"]: TPE cannot starve a trainer method)."""
     balance_min_share: float = BALANCE_MIN_SHARE
     """Share of the sampled trials each value of a balanced parameter gets at least (≤ 1 / its choices)."""
     balance_values: tuple[tuple[str, tuple[Any, ...]], ...] = ()
-    """For a balanced parameter, the values given that share (default: every choice); the layer count (an integer)
-    is balanced only on the values named here (e.g. {n_layers = [1]}: a fifth of the draws with one hidden layer)."""
+    """For a balanced parameter, the values given that share (default: every choice); an integer one (the layer
+    count, lanes_side) is balanced only on the values named here (e.g. {n_layers = [1]}: a fifth of the draws with
+    one hidden layer; {lanes_side = [6]}: a fifth seeing the whole road, with their own γ, ε floor and rate)."""
     denoise: bool = False
     """Show the sampler each finished trial at a regression forest's score for its parameters at the ladder's
     min_top, not at its own noisy score (``autotune.search.denoise``; TPE and random samplers)."""
@@ -1177,8 +1178,9 @@ def _check_value(
 
 
 def _check_balance(spec: StudySpec) -> None:
-    """[study] balance names categorical, non-layout [space] parameters (or the layer count, with the values given
-    a floor in balance_values), every one of whose floored values exists and can get the share."""
+    """[study] balance names categorical, non-layout [space] parameters (or integer ones — the layer count, the
+    view's lanes_side — with the values given a floor in balance_values), every one of whose floored values exists
+    and can get the share."""
     st = spec.study
     where = _Where(spec.source, "study")
     if st.balance and st.sampler not in BALANCEABLE_SAMPLERS:
@@ -1186,12 +1188,13 @@ def _check_balance(spec: StudySpec) -> None:
                           'use sampler = "tpe" (or "random"), or remove balance')  # fmt: skip
     dims = spec.dimensions
     categorical = [n for n, d in dims.items() if d.kind == "categorical" and n not in LAYOUT]
-    valid = categorical + (["n_layers"] if "n_layers" in dims else [])
+    integers = [n for n, d in dims.items() if d.kind == "int" and n not in LAYOUT[1:]]
+    valid = categorical + integers
     given = dict(st.balance_values)
     for name in st.balance:
         d = dims.get(name)
         if d is None or name not in valid:
-            what = "is not in [space]" if d is None else "is not a categorical [space] parameter of its own"
+            what = "is not in [space]" if d is None else "is not a categorical or integer [space] parameter of its own"
             named = ", ".join(valid) or "none (the space has no such parameter)"
             raise where.error("balance", f"{name!r} {what}{_hint(name, valid)}", f"name one of: {named}")
         if d.kind != "categorical" and name not in given:

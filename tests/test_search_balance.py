@@ -12,8 +12,8 @@ import optuna
 import pytest
 
 from autotune.search import space
-from autotune.search.balance import BalancedSampler, conditional_startup, forced_value
-from autotune.search.driver import make_sampler
+from autotune.search.balance import ApartPruner, BalancedSampler, conditional_startup, forced_value
+from autotune.search.driver import make_pruner, make_sampler
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
 
 optuna.logging.set_verbosity(optuna.logging.ERROR)
@@ -414,3 +414,45 @@ def test_balance_every_draw_is_checked() -> None:
         _spec(balance=["method"], balance_every_draw="yes")
     with pytest.raises(SpecError, match=r"\[study\] balance_every_draw: conditions the draws .* balance is empty"):
         _spec(balance_every_draw=True)
+
+
+def _apart_halving(pruner: optuna.pruners.BasePruner) -> list[bool]:
+    """Whether each whole-road trial (``lanes_side = 2`` here; 70–73, then 60 and 69 at the first rung) and then a
+    narrow one (75.4) is pruned, after nine narrow trials (74–76) reached that rung."""
+    study = optuna.create_study(direction="maximize", sampler=optuna.samplers.RandomSampler(seed=0), pruner=pruner)
+    width = {"lanes_side": optuna.distributions.IntDistribution(0, 2)}
+    out = []
+    for lanes, score in (
+        [(0, 74.0 + i / 4) for i in range(9)] + [(2, s) for s in (70, 71, 72, 73, 60, 69)] + [(1, 75.4)]
+    ):
+        study.enqueue_trial({"lanes_side": lanes})
+        trial = study.ask(width)
+        trial.report(score, 1)
+        out.append(trial.should_prune())
+        study.tell(trial, state=optuna.trial.TrialState.PRUNED)
+    return out[9:]
+
+
+def test_a_balanced_views_draws_are_halved_among_their_own_kind() -> None:
+    """``balance_prune_apart``: the draws of a floored value are ranked by the pruner among the trials with that
+    value, every other trial among the trials without it: a narrow 75.4, in the top third of all 16, is not in that of
+    the ten narrow ones."""
+    sha = optuna.pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=3, min_early_stopping_rate=0)
+    assert _apart_halving(sha) == [True] * 6 + [False]  # among the narrow ones: never in the top third
+    assert _apart_halving(ApartPruner(sha, {"lanes_side": (2,)})) == [False] * 4 + [True, True, True]
+    with pytest.raises(ValueError, match="name at least one"):
+        ApartPruner(sha, {})
+    spec = _spec(balance=["method", "lanes_side"], balance_values={"lanes_side": [2]}, pruner="sha",
+                 balance_prune_apart=["lanes_side"])  # fmt: skip
+    assert spec.study.balance_prune_apart == ("lanes_side",) and parse_spec(spec.to_dict()) == spec
+    made = make_pruner(spec)
+    assert isinstance(made, ApartPruner) and isinstance(made.base, optuna.pruners.SuccessiveHalvingPruner)
+    plain = _spec(balance=["method"], pruner="sha")
+    assert not isinstance(make_pruner(plain), ApartPruner) and "balance_prune_apart" not in plain.to_dict()["study"]
+    with pytest.raises(SpecError, match=r"\[study\] balance_prune_apart: 'lanes_side' is not in balance"):
+        _spec(balance=["method"], balance_prune_apart=["lanes_side"])
+    for bad in ("lanes_side", ["method", "method"], [1]):
+        with pytest.raises(SpecError, match=r"\[study\] balance_prune_apart: must be a list of balanced parameters"):
+            _spec(balance=["method"], balance_prune_apart=bad)
+    with pytest.raises(SpecError, match=r"balance_prune_aprt.*balance_prune_apart"):  # a misspelt key
+        _spec(balance=["method"], balance_prune_aprt=["method"])

@@ -72,7 +72,7 @@ from autotune.convnet import stack, widen
 from autotune.convnet.netjson import dumps_net, loads_net
 from autotune.learner.config import parse_layers
 from autotune.search import ensemble, keys, prior, racing, refine, soup, space, twins
-from autotune.search.balance import BalancedSampler, conditional_startup
+from autotune.search.balance import ApartPruner, BalancedSampler, conditional_startup
 from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
 from autotune.search.denoise import DenoisedSampler
 from autotune.search.gate import CostGatedSampler, distributions
@@ -236,8 +236,12 @@ def _base_sampler(spec: StudySpec, seed: int, name: str, startup: int | None = N
 
 def make_pruner(spec: StudySpec) -> optuna.pruners.BasePruner:
     """The spec's pruner over the report schedule (steps 0 … report_points − 1), tuned by [evaluation]; with
-    ``[study] prior_free_share``, the prior-free draws are pruned among their own kind (``prior.PriorFreePruner``)."""
+    ``[study] prior_free_share``, the prior-free draws are pruned among their own kind (``prior.PriorFreePruner``),
+    and with ``[study] balance_prune_apart`` the balanced values' trials (``balance.ApartPruner``)."""
     base = _base_pruner(spec)
+    if spec.study.balance_prune_apart:  # a balanced value's draws halved among their own kind
+        dims, given = spec.dimensions, dict(spec.study.balance_values)
+        base = ApartPruner(base, {n: given.get(n, dims[n].choices) for n in spec.study.balance_prune_apart})
     return PriorFreePruner(base) if spec.study.prior_free_share > 0.0 else base
 
 

@@ -9,7 +9,7 @@ Five tables, every key optional unless said otherwise::
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
                   linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours, seed_soup_leader,
-                  seed_soup_best, seed_soup_best_span, prior_free_share, seed_soup_views
+                  seed_soup_best, seed_soup_best_span, prior_free_share, seed_soup_views, balance_prune_apart
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -333,6 +333,10 @@ class StudySection:
     """With seed_soup_families: linear configurations of any view in one family (traffic, temporal window and
     ε_test alike): a soup's nets are moved onto the union of their views (``autotune.convnet.widen``: the same
     Q-values), so a configuration's view neighbours soup with it."""
+    balance_prune_apart: tuple[str, ...] = ()
+    """Balanced parameters whose floored values' trials the pruner judges among themselves (a whole-road view's
+    draws halved against whole-road draws, not the crowd's region; ``balance.ApartPruner``), every other trial
+    among the rest; (): all together."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -545,7 +549,7 @@ class StudySpec:
             study["linear_twins"] = {method: list(rates) for method, rates in twins}
         optional = ("linear_twin_span", "seed_soup_families", "seed_ensembles", "seed_soup_swap_span",
                     "linear_neighbours", "seed_soup_leader", "seed_soup_best", "seed_soup_best_span",
-                    "prior_free_share", "seed_soup_views")  # fmt: skip
+                    "prior_free_share", "seed_soup_views", "balance_prune_apart")  # fmt: skip
         for key in optional:  # likewise
             if not study[key]:
                 del study[key]
@@ -852,13 +856,22 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
             "soups linear configurations of other views together, but seed_soup_families is off",
             "set seed_soup_families = true, or remove seed_soup_views",
         )
+    apart = table.get("balance_prune_apart", [])
+    names = isinstance(apart, list | tuple) and all(isinstance(a, str) for a in apart)
+    if not names or len(set(apart)) < len(apart):
+        raise where.error("balance_prune_apart", f"must be a list of balanced parameters, each once, got {apart!r}",
+                          'write balance_prune_apart = ["lanes_side"]')  # fmt: skip
+    for key in apart:
+        if key not in balance:
+            raise where.error("balance_prune_apart", f"{key!r} is not in balance{_hint(key, list(balance))}",
+                              f'add it: balance = {[*balance, key]!r}'.replace("'", '"'))  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
-        best_seeds, best_span, prior_free, views,
+        best_seeds, best_span, prior_free, views, tuple(apart),
     )  # fmt: skip
 
 

@@ -420,7 +420,7 @@ def _apart_halving(pruner: optuna.pruners.BasePruner) -> list[bool]:
     """Whether each whole-road trial (``lanes_side = 2`` here; 70–73, then 60 and 69 at the first rung) and then a
     narrow one (75.4) is pruned, after nine narrow trials (74–76) reached that rung."""
     study = optuna.create_study(direction="maximize", sampler=optuna.samplers.RandomSampler(seed=0), pruner=pruner)
-    width = {"lanes_side": optuna.distributions.IntDistribution(0, 2)}
+    width: dict[str, optuna.distributions.BaseDistribution] = {"lanes_side": optuna.distributions.IntDistribution(0, 2)}
     out = []
     for lanes, score in (
         [(0, 74.0 + i / 4) for i in range(9)] + [(2, s) for s in (70, 71, 72, 73, 60, 69)] + [(1, 75.4)]

@@ -792,6 +792,36 @@ def _driver_on_journal(spec: StudySpec) -> tuple[Driver, Any, Any, dict[str, Any
     return driver, driver.open_study(), storages, distributions(spec), space.encode(spec, TINY)
 
 
+def test_a_race_run_queued_behind_other_enqueued_trials_still_starts(tmp_path: Path) -> None:
+    """Optuna's queue pops the oldest waiting trial: race runs enqueued behind two linear neighbours (enqueued just
+    before the race window) have the neighbours start in their place. Once those finish, the waiting race runs
+    start (``_race_slot``), where the race used to keep both slots for them, idle, to the study's end."""
+    spec = _spec(race_configs=2, race_seeds=1, n_trials=50, timeout_s=3600).with_overrides(
+        storage=str(tmp_path / "j.log"))  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    done = optuna.trial.TrialState.COMPLETE
+    for value in (74.0, 73.0):
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=done,
+                                                  user_attrs={keys.CONFIG: TINY.to_mapping()}))  # fmt: skip
+    study.set_user_attr(keys.RACE_FIELD, [0, 1])
+    for _ in range(2):
+        study.enqueue_trial(params, user_attrs={keys.NEIGHBOUR_OF: 0})
+    driver._t0 = time.perf_counter() - 0.9 * 3600  # noqa: SLF001 - in the race window
+    driver.pool = pool = FakePool()
+    assert driver._race_window()  # noqa: SLF001
+    assert driver._race_slot(0) and driver._race_slot(1)  # noqa: SLF001 - each enqueues a race run, starts a neighbour
+    started = [study.trials[task.number] for task in pool.tasks]
+    assert [t.user_attrs.get(keys.NEIGHBOUR_OF) for t in started] == [0, 0]
+    assert driver._race_runs() == ([], False)  # noqa: SLF001 - both race runs count as launched: none left to start
+    for task in pool.tasks:
+        study.tell(task.number, 73.5)
+    assert driver._race_slot(0) and driver._race_slot(1)  # noqa: SLF001
+    raced = [study.trials[task.number].user_attrs.get(keys.RACE_OF) for task in pool.tasks[2:]]
+    assert sorted(raced) == [0, 1]
+    assert not study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.WAITING,))
+    assert driver._race_slot(0) and not pool.tasks[4:]  # noqa: SLF001 - nothing waits: kept for the round under way
+
+
 def test_the_race_winner_takes_the_time_left_while_its_runs_reach_the_best_net(tmp_path: Path) -> None:
     """The driver's ``_race_runs``: after the halving, the winner's next seed while its best run reaches the study's
     best single net (kept rungs count), one run of it fits the time left and the trial budget is not spent."""

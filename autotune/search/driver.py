@@ -739,6 +739,23 @@ class Driver:
             return [], True
         return [tail], False
 
+    def _race_slot(self, slot: int) -> bool:
+        """In the race window: whether ``slot`` is taken by the race or kept for it — a race run started, else the
+        oldest enqueued trial (``_launch_waiting``), else kept while a round is still under way; False once the race
+        is over (the slot goes back to the search)."""
+        return self._launch_race(slot) or self._launch_waiting(slot) or not self._race_over
+
+    def _launch_waiting(self, slot: int) -> bool:
+        """Start the oldest enqueued trial on ``slot``; False when none waits. Why: Optuna's queue pops the oldest
+        waiting trial, so a race run enqueued behind linear neighbours (enqueued just before the race window, while
+        both workers were busy) had a neighbour start in its place, and then counted as launched while it waited: no
+        race run was left to start, and the race kept both slots for it. A crowd-prior hour (study seed 2) sat idle
+        from minute 45 to its end that way, four neighbours and two race runs waiting."""
+        assert self.study is not None
+        if not self.study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+            return False
+        return self._launch_next(slot)
+
     def _launch_race(self, slot: int) -> bool:
         """Start the next race run on ``slot``; False when none can start now (round running, or race over)."""
         assert self.study is not None
@@ -1304,9 +1321,8 @@ class Driver:
                 for slot in self.pool.idle_slots(set(self._running)):
                     if self._launch_seed_soup(slot):
                         continue  # seconds of evaluation: before the race's runs and the search's
-                    if self._race_window():
-                        if self._launch_race(slot) or not self._race_over:
-                            continue  # started a race run, or a round is still running: keep the slot for it
+                    if self._race_window() and self._race_slot(slot):
+                        continue  # started a race run, or a round is still running: keep the slot for it
                     if not (self._launch_refine(slot) or self._launch_incumbent(slot) or self._launch_next(slot)):
                         break
             if not self._running:

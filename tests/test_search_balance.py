@@ -119,6 +119,21 @@ def test_a_forced_draw_is_modelled_on_its_own_values_trials() -> None:
     assert any(len(methods) > 1 for methods, _a in shared)  # the base's history holds every method's trials
 
 
+def _spy_conditional(balanced: BalancedSampler, name: str) -> list[tuple[set[Any], set[str]]]:
+    """Record, for each draw of ``balanced``'s conditional sampler, the values of ``name`` among the trials it was
+    shown and the parameters it was asked for."""
+    own: list[tuple[set[Any], set[str]]] = []
+    conditional = balanced._conditional  # noqa: SLF001
+    sample_own = conditional.sample_relative
+
+    def spy_own(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
+        own.append(({t.params[name] for t in study._get_trials(deepcopy=False)}, set(search_space)))  # noqa: SLF001
+        return sample_own(study, trial, search_space)
+
+    conditional.sample_relative = spy_own  # type: ignore[method-assign]
+    return own
+
+
 def test_a_forced_layer_count_draw_models_its_trainer_method_on_its_own_trials() -> None:
     """A draw forced to linear nets (``n_layers = 0``) takes its trainer method, as its rate and layout, from the
     linear trials alone: which method suits a net depends on its depth."""
@@ -126,15 +141,7 @@ def test_a_forced_layer_count_draw_models_its_trainer_method_on_its_own_trials()
     sampler = make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0)
     balanced = sampler.base  # type: ignore[attr-defined]
     assert isinstance(balanced, BalancedSampler)
-    own: list[tuple[set[int], set[str]]] = []
-    conditional = balanced._conditional  # noqa: SLF001
-    sample_own = conditional.sample_relative
-
-    def spy_own(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
-        own.append(({t.params["n_layers"] for t in study._get_trials(deepcopy=False)}, set(search_space)))  # noqa: SLF001
-        return sample_own(study, trial, search_space)
-
-    conditional.sample_relative = spy_own  # type: ignore[method-assign]
+    own = _spy_conditional(balanced, "n_layers")
     study = optuna.create_study(direction="maximize", sampler=sampler)
     for _ in range(30):
         trial = study.ask()
@@ -152,21 +159,16 @@ def test_a_forced_view_draw_models_its_own_view_gamma_epsilon_and_rate_on_its_ow
     sampler = make_sampler(spec, 0, lambda _p: 1.0, lambda: 10.0)
     balanced = sampler.base  # type: ignore[attr-defined]
     assert isinstance(balanced, BalancedSampler)
-    own: list[tuple[set[int], set[str]]] = []
+    own = _spy_conditional(balanced, "lanes_side")
     shared: list[set[str]] = []
-    conditional, base = balanced._conditional, balanced._base  # noqa: SLF001
-    sample_own, sample_base = conditional.sample_relative, base.sample_relative
-
-    def spy_own(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
-        own.append(({t.params["lanes_side"] for t in study._get_trials(deepcopy=False)}, set(search_space)))  # noqa: SLF001
-        return sample_own(study, trial, search_space)
+    base = balanced._base  # noqa: SLF001
+    sample_base = base.sample_relative
 
     def spy_base(study: Any, trial: Any, search_space: Any) -> dict[str, Any]:
         if balanced.forced(trial.number) is not None:
             shared.append(set(search_space))
         return sample_base(study, trial, search_space)
 
-    conditional.sample_relative = spy_own  # type: ignore[method-assign]
     base.sample_relative = spy_base  # type: ignore[method-assign]
     study = optuna.create_study(direction="maximize", sampler=sampler)
     for _ in range(30):

@@ -40,7 +40,7 @@ import math
 import os
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -728,10 +728,8 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if not isinstance(values, dict) or not all(isinstance(v, list) and v for v in values.values()):
         raise where.error("balance_values", f"must be a table of non-empty lists of values, got {values!r}",
                           "write balance_values = { n_layers = [1] }")  # fmt: skip
+    _check_balanced("balance_values", values, balance, where)
     for key in values:
-        if key not in balance:
-            raise where.error("balance_values", f"{key!r} is not in balance{_hint(key, list(balance))}",
-                              f'add it: balance = {[*balance, key]!r}'.replace("'", '"'))  # fmt: skip
         if len(set(map(repr, values[key]))) != len(values[key]):
             raise where.error("balance_values", f"{key} names a value twice: {values[key]!r}", "name each value once")
     share = _float(table.get("balance_min_share", d.balance_min_share), f"{src}: [study] balance_min_share", 0.0, 1.0)
@@ -861,10 +859,7 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if not names or len(set(apart)) < len(apart):
         raise where.error("balance_prune_apart", f"must be a list of balanced parameters, each once, got {apart!r}",
                           'write balance_prune_apart = ["lanes_side"]')  # fmt: skip
-    for key in apart:
-        if key not in balance:
-            raise where.error("balance_prune_apart", f"{key!r} is not in balance{_hint(key, list(balance))}",
-                              f'add it: balance = {[*balance, key]!r}'.replace("'", '"'))  # fmt: skip
+    _check_balanced("balance_prune_apart", apart, balance, where)
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
@@ -873,6 +868,14 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
         best_seeds, best_span, prior_free, views, tuple(apart),
     )  # fmt: skip
+
+
+def _check_balanced(key: str, names: Iterable[str], balance: Sequence[str], where: _Where) -> None:
+    """Every parameter [study] ``key`` names is in [study] balance."""
+    for name in names:
+        if name not in balance:
+            raise where.error(key, f"{name!r} is not in balance{_hint(name, list(balance))}",
+                              f'add it: balance = {[*balance, name]!r}'.replace("'", '"'))  # fmt: skip
 
 
 def _linear_twins(table: Any, where: _Where) -> tuple[tuple[str, tuple[float, ...]], ...]:

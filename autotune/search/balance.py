@@ -344,7 +344,7 @@ class ApartPruner(BasePruner):
     trials sharing that value, and every other trial among the trials with none of them (``[study]
     balance_prune_apart``). Why: a balanced value's share of the draws is wasted when the pruner ranks them against
     a region the study knows better. A crowd-prior hour (study seed 2) with a fifth of its draws forced to the whole
-    road in view (``lanes_side = 6``) had all 9 of its first 15 minutes' pruned at 10k or 30k (the best 69.6), the
+    road in view (``lanes_side = 6``) had all 11 of its first 16 minutes' pruned at 10k or 30k (the best 69.6), the
     crowd's region setting the bar; likewise the prior-free draws (``autotune.search.prior.PriorFreePruner``)."""
 
     def __init__(self, base: BasePruner, apart: Mapping[str, Sequence[Any]]) -> None:

@@ -194,8 +194,7 @@ def _modelled(spec: StudySpec, seed: int, name: str) -> optuna.samplers.BaseSamp
     """The spec's sampler behind its balance and denoise wrappers (``make_sampler``), seeded ``seed``."""
     base = _base_sampler(spec, seed, name)
     if spec.study.balance:  # each value of a balanced parameter keeps its share (``balance.BalancedSampler``)
-        dims, given = spec.dimensions, dict(spec.study.balance_values)
-        floors = {n: given.get(n, dims[n].choices) for n in spec.study.balance}
+        floors = _floors(spec, spec.study.balance)
         per_value = conditional_startup(spec.study.sampler_startup_trials, max(len(c) for c in floors.values()))
         conditional = _base_sampler(spec, seed + 1, name, startup=per_value)
         dists = distributions(spec)
@@ -205,6 +204,12 @@ def _modelled(spec: StudySpec, seed: int, name: str) -> optuna.samplers.BaseSamp
     if spec.study.denoise:  # the history at a forest's estimate of each trial, not its own noisy score
         base = DenoisedSampler(base, denoise_reference_step(spec), seed, quantile=spec.study.denoise_quantile)
     return base
+
+
+def _floors(spec: StudySpec, names: Sequence[str]) -> dict[str, tuple[Any, ...]]:
+    """The values with a floor of each balanced parameter in ``names``: its ``balance_values``, else its choices."""
+    dims, given = spec.dimensions, dict(spec.study.balance_values)
+    return {n: tuple(given.get(n, dims[n].choices)) for n in names}
 
 
 def denoise_reference_step(spec: StudySpec) -> int:
@@ -240,8 +245,7 @@ def make_pruner(spec: StudySpec) -> optuna.pruners.BasePruner:
     and with ``[study] balance_prune_apart`` the balanced values' trials (``balance.ApartPruner``)."""
     base = _base_pruner(spec)
     if spec.study.balance_prune_apart:  # a balanced value's draws halved among their own kind
-        dims, given = spec.dimensions, dict(spec.study.balance_values)
-        base = ApartPruner(base, {n: given.get(n, dims[n].choices) for n in spec.study.balance_prune_apart})
+        base = ApartPruner(base, _floors(spec, spec.study.balance_prune_apart))
     return PriorFreePruner(base) if spec.study.prior_free_share > 0.0 else base
 
 

@@ -216,12 +216,14 @@ def test_chosen_trial_prefers_the_raced_configuration() -> None:
     assert sq.chosen_trial(rows, 60, ([0, 1], 2)).number == 1  # paired: trial 1's seeds 2, 3 not run: on 0, 1
     assert sq.chosen_trial(rows, 60, ([0, 1], 2)).config == {"c": 1}
     assert sq.chosen_trial(rows, 60, ([0, 1], 4)).number == 1  # one round still running: the same
-    assert sq.chosen_trial(rows, 60, race).number == 1  # trial 0 out after round 0; its later runs count for none
+    # trial 1 won round 0 (73 against 71); its tail's 73.5 leaves its mean, 73.25, under trial 0's 75.5 over its 4
+    # seeds: the tail overturns the halving (racing.tail_leader)
+    assert sq.chosen_trial(rows, 60, race).number == 0
     early = [dataclasses.replace(rows[2], end_s=21, seed_run=True),
              dataclasses.replace(rows[3], end_s=22, incumbent=True)]  # fmt: skip
     assert sq.chosen_trial(rows[:2] + early, 25, race).number == 0  # runs before the race: no field yet
     assert sq.chosen_trial(rows[:2] + early + rows[4:6], 45, race).number == 1  # then they count as its seeds
-    rung = [row(8, 70.0, 70, race_of=1, race_seed=2, config={"c": 1, "train_iterations": 10_000})]  # at a rung
+    rung = [row(8, 81.0, 70, race_of=1, race_seed=2, config={"c": 1, "train_iterations": 10_000})]  # at a rung
     chosen = sq.chosen_trial(rows + rung, 80, race)
     assert chosen.number == 1 and chosen.config == {"c": 1, "train_iterations": 10_000}  # what the race measured
 

@@ -764,6 +764,38 @@ def test_before_the_race_the_best_configuration_is_the_best_mean_over_three_fres
     assert summary is not None and not summary["provisional"] and summary["entrants"] == [0, 1]
 
 
+def test_best_names_the_rival_the_winners_tail_fell_below(tmp_path: Path) -> None:
+    """``race_summary`` and ``autotune best`` once the tail overturned the halving (``racing.tail_leader``): the
+    rival is the winner row, not a finalist, and ``best`` says why; the halving's winner follows as a finalist."""
+    import subprocess
+    import sys
+
+    from autotune.search.records import race_summary
+
+    spec = _spec(race_seeds=1).with_overrides(storage=str(tmp_path / "j.log"))
+    storages = open_storage(spec.study.storage, spec.study.name)
+    study = Driver(spec, storages).open_study()
+    done = optuna.trial.TrialState.COMPLETE
+    add = _tiny_adder(study, spec)
+    add(done, 76.0)
+    add(done, 75.0)
+    study.set_user_attr(keys.RACE_FIELD, [0, 1])
+    for number, index, value in ((0, 0, 75.0), (1, 0, 74.5), (0, 1, 74.0)):
+        add(done, value, **{keys.RACE_OF: number, keys.RACE_SEED: index})
+    summary = race_summary(storages, spec.study.name)
+    assert summary is not None and summary["winner"]["trial"] == 0  # 74.5 over 2 ties 74.5: the winner keeps it
+    add(done, 62.0, **{keys.RACE_OF: 0, keys.RACE_SEED: 2})  # a collapse in the tail: 70.33 over 3
+    summary = race_summary(storages, spec.study.name)
+    assert summary is not None and summary["winner"]["trial"] == 1 and not summary["winner"]["finalist"]
+    assert summary["standings"][1]["trial"] == 0 and summary["standings"][1]["finalist"]
+    best = subprocess.run([sys.executable, "-m", "autotune.cli", "best", spec.study.name, "--storage",
+                           spec.study.storage], cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert best.returncode == 0, best.stderr
+    assert "best configuration over fresh seeds (the seed race): trial 1's settings: 74.50 mph (n = 1" in best.stdout
+    assert "the halving's winner's mean over all its fresh seeds fell below this one's" in best.stdout
+    assert "raced: trial 0: 70.33 mph over 3 fresh seed(s) (finalist)" in best.stdout
+
+
 def test_the_race_winner_gets_more_seeds_only_once_the_halving_is_over() -> None:
     """``tail_run``: nothing while the halving runs; then the winner's first seed index not yet started (a running
     one counts); a field of one takes its tail after its first round. ``tail_reaches``: within the reach of the
@@ -783,6 +815,34 @@ def test_the_race_winner_gets_more_seeds_only_once_the_halving_is_over() -> None
     assert racing.tail_reaches([74.77, 64.41, 75.16], 75.16) and racing.tail_reaches([74.7], 75.16)
     assert not racing.tail_reaches([74.12, 74.09], 74.96)  # a cold hour's winner: 0.84 below its study's best
     assert not racing.tail_reaches([None], 70.0) and racing.tail_reaches([70.0], None)
+
+
+def test_a_rival_of_the_last_round_leads_once_the_winners_tail_falls_below_its_mean() -> None:
+    """``tail_leader``: the halving's winner (signed ranks) until its tail brings its mean over all its seeds below
+    that of a configuration it beat in the last round; then that one takes the tail's seeds and heads the
+    standings, and back again when its own mean falls; a failed run is no mean. Study seed 3's race, in short."""
+    field = [1, 2, 3, 4]
+    results: dict[tuple[int, int], float | None] = {
+        (1, 0): 75.46, (1, 1): 75.13, (2, 0): 74.52, (2, 1): 75.09, (3, 0): 73.0, (3, 1): 73.5, (4, 0): 72.0,
+        (4, 1): 72.5, (1, 2): 75.33, (1, 3): 74.15, (2, 2): 75.13, (2, 3): 75.11,
+    }  # fmt: skip
+    assert racing.next_runs(field, results, set(results), 2) == ([], True)
+    assert racing.tail_leader(field, results, 2) == 1  # 3 of 4 seeds: signed ranks +2, though its mean is 75.02
+    assert racing.tail_run(field, results, set(results), 2) == racing.RaceRun(1, 4)
+    results.update({(1, 4): 74.54, (1, 5): 75.3})  # 74.99 over 6 seeds > 74.96: the verdict stands
+    assert racing.tail_leader(field, results, 2) == 1 and racing.standings(field, results, 2)[0].number == 1
+    results[(1, 6)] = 64.91  # a collapse: 73.55 over 7 seeds
+    assert racing.tail_leader(field, results, 2) == 2
+    assert racing.tail_run(field, results, set(results), 2) == racing.RaceRun(2, 4)  # a seed 1 ran: paired
+    ranked = racing.standings(field, results, 2)
+    assert [st.number for st in ranked][:2] == [2, 1] and ranked[0].mean == pytest.approx(74.9625)
+    assert racing.tail_leader([3, 4, 1, 2], results, 2) == 2  # 3 and 4, cut in round 0, never lead
+    results[(2, 4)] = 60.0  # its own collapse: 71.97 over 5
+    assert racing.tail_leader(field, results, 2) == 1
+    assert racing.tail_run(field, results, set(results), 2) == racing.RaceRun(1, 7)
+    results[(1, 7)] = None  # a failed run ranks its configuration last
+    assert racing.tail_leader(field, results, 2) == 2
+    assert racing.tail_leader([7], {(7, 0): 70.0, (7, 1): 71.0}, 2) == 7  # a field of one: no rival
 
 
 def _driver_on_journal(spec: StudySpec) -> tuple[Driver, Any, Any, dict[str, Any], dict[str, Any]]:

@@ -155,7 +155,12 @@ def _best(args: argparse.Namespace) -> int:
                 f"  (won on the {w['ranked_on']} fresh seed(s) every finalist finished: {w['paired_mean']:.2f} mph; "
                 "a run the deadline stopped counts for no finalist)"
             )
-        print("  (ranked by paired per-seed comparisons, Wilcoxon's signed ranks: one collapsed seed is one lost seed)")
+        if w["finalist"]:
+            print("  (ranked by paired per-seed comparisons, Wilcoxon's signed ranks: one collapsed seed is one lost "
+                  "seed)")  # fmt: skip
+        else:
+            print("  (the pick after the race's tail: the halving's winner's mean over all its fresh seeds fell below "
+                  "this one's, a rival of its last round)")  # fmt: skip
         for row in race["standings"][1:]:
             if row["n"]:
                 paired = (

@@ -22,9 +22,11 @@ far), on the seeds every finalist with a result has one for. Once the halving le
 the race's remaining time may retrain it on further fresh seeds (``tail_run``), while its best run
 reaches the study's best single net (``tail_reaches``): each such run is one more net at the
 leaderboard's level and tightens the winner's mean; a winner whose runs trail the study's best leaves the
-time to the search instead. A run the study's deadline stopped is no
-result (missing for every finalist, not held against the one it stopped); a run that failed, or that
-its own time limit stopped, is a result that ranks its configuration last.
+time to the search instead. Those seeds can overturn the halving (``tail_leader``): once the winner's mean
+over all its seeds falls below that of a configuration it beat in the last round, that one leads, and takes
+the tail. A run the study's deadline stopped is no result (missing for every finalist, not held against the
+one it stopped); a run that failed, or that its own time limit stopped, is a result that ranks its
+configuration last.
 
 With ``[study] intensify_share``, the search retrains its incumbent on the race's seeds before the race
 (``incumbent_run``; SMAC's intensification): the best candidate whose fresh runs — before its first, its selecting
@@ -51,8 +53,8 @@ from autotune.search.seeds import derived_seed
 
 __all__ = [
     "Entrant", "RaceRun", "RaceStanding", "race_seed", "entrants", "field_order", "next_runs", "run_result",
-    "signed_rank", "standings", "provisional_standings", "tail_reaches", "tail_run", "incumbent_run", "RACE_SALT",
-    "TAIL_REACH_MPH", "PROVISIONAL_SEEDS",
+    "signed_rank", "standings", "provisional_standings", "tail_leader", "tail_reaches", "tail_run", "incumbent_run",
+    "RACE_SALT", "TAIL_REACH_MPH", "PROVISIONAL_SEEDS",
 ]  # fmt: skip
 
 RACE_SALT = 0x5EED_2ACE
@@ -208,17 +210,20 @@ def _paired_order(ids: Sequence[int], table: Mapping[int, Sequence[float]], fiel
 
 def _survivors(
     field: Sequence[int], results: Mapping[tuple[int, int], float | None], seeds_per_round: int
-) -> tuple[list[int], int, bool]:
-    """(survivors, current round, is the current round complete?) from the finished race runs."""
+) -> tuple[list[int], int, bool, list[int]]:
+    """(survivors, current round, is the current round complete?, the configurations the last cut compared — the
+    field before any) from the finished race runs."""
     alive = list(field)
+    last = alive
     rnd = 0
     while True:
         seeds = range(rnd * seeds_per_round, (rnd + 1) * seeds_per_round)
         done = all((n, s) in results for n in alive for s in seeds)
         if not done or len(alive) <= 1:
-            return alive, rnd, done
+            return alive, rnd, done, last
         upto = (rnd + 1) * seeds_per_round
         ranked = _paired_order(alive, {n: _results(n, results, range(upto)) for n in alive}, field)
+        last = alive
         alive = ranked[: math.ceil(len(alive) / 2)]
         rnd += 1
 
@@ -243,7 +248,7 @@ def next_runs(
     """
     if len(field) == 0:
         return [], True
-    alive, rnd, done = _survivors(field, results, seeds_per_round)
+    alive, rnd, done, _last = _survivors(field, results, seeds_per_round)
     if len(alive) <= 1 and (done or rnd > 0):
         return [], True
     started = set(launched)
@@ -258,13 +263,45 @@ def tail_run(
     launched: Iterable[tuple[int, int]],
     seeds_per_round: int,
 ) -> RaceRun | None:
-    """The halving's winner's next fresh seed (the first seed index it has not started), once the halving is
-    over (``next_runs`` says so) and one configuration is left; None before then or without a winner."""
-    alive, rnd, done = _survivors(list(field), results, seeds_per_round)
+    """The tail leader's next fresh seed (the first seed index it has not started; ``tail_leader``: the halving's
+    winner, or a configuration of its last round whose mean the winner's tail fell below), once the halving is over
+    (``next_runs`` says so) and one configuration is left; None before then or without a winner."""
+    leader = tail_leader(field, results, seeds_per_round)
+    if leader is None:
+        return None
+    started = {s for (n, s) in launched if n == leader}
+    return RaceRun(leader, next(i for i in itertools.count() if i not in started))
+
+
+def tail_leader(
+    field: Sequence[int], results: Mapping[tuple[int, int], float | None], seeds_per_round: int
+) -> int | None:
+    """The race's pick once the halving is over (None before, or without a winner): its winner, until the
+    winner's tail — its runs past the seeds the halving compared — brings its mean over all its seeds below that
+    of a configuration it beat in the last round (over all of that one's fresh seeds: the race's, and any seed
+    runs before it); then the one of that round with the best such mean (a failed run: no mean), which takes the
+    tail's next seeds in turn.
+
+    Why: the halving ranks by signed ranks so that one collapsed seed in four does not decide a mean; the tail's
+    many seeds measure the collapses too. A crowd-prior hour (study seed 3) crowned a linear net that won 3 of the
+    last round's 4 seeds (losing the fourth by 0.96) against one averaging 74.96 on them (74.52–75.13); the
+    winner's 55 seeds then averaged 74.02 (4 under 70, the lowest 60.44), and it scored 72.70 on 3 fresh seeds
+    (one 69.05), its rival 74.68. Of seven stored races this rule changes two picks: that one, and seed 1's (a
+    27-seed mean of 74.37 against 74.85 on 4; on the fresh seeds 75.26 for the winner, 75.06 for the rival)."""
+    alive, rnd, done, last = _survivors(list(field), results, seeds_per_round)
     if len(alive) != 1 or not (done or rnd > 0):
         return None
-    started = {s for (n, s) in launched if n == alive[0]}
-    return RaceRun(alive[0], next(i for i in itertools.count() if i not in started))
+    winner = alive[0]
+    if not any(n == winner and s >= rnd * seeds_per_round for (n, s) in results):
+        return winner  # no tail yet: the halving's verdict stands
+
+    def mean(number: int) -> float:
+        scores = [v for (n, _s), v in results.items() if n == number]
+        if not scores or any(v is None or not math.isfinite(v) for v in scores):
+            return -math.inf
+        return statistics.fmean(float(v) for v in scores if v is not None)
+
+    return max(last, key=lambda n: (mean(n), n == winner, -last.index(n)))
 
 
 def tail_reaches(scores: Iterable[float | None], best: float | None, reach: float = TAIL_REACH_MPH) -> bool:
@@ -323,7 +360,8 @@ def run_result(
 def standings(
     field: Sequence[int], results: Mapping[tuple[int, int], float | None], seeds_per_round: int = 1
 ) -> list[RaceStanding]:
-    """Every entrant's fresh-seed record, the winner first.
+    """Every entrant's fresh-seed record, the winner first (the tail's leader where the tail overturned the
+    halving, ``tail_leader``).
 
     The finalists (``_survivors``) come first, ranked on the seeds every finalist with a result has one
     for by their signed ranks against one another, then their mean there (``_paired_order``, as the
@@ -332,7 +370,7 @@ def standings(
     they got (fresh seeds finished), then their mean. Ties keep the field's order.
     """
     field = list(field)
-    alive, _rnd, _done = _survivors(field, results, seeds_per_round)
+    alive, _rnd, _done, _last = _survivors(field, results, seeds_per_round)
     finalists = set(alive)
     compared = [n for n in alive if any(m == n for (m, _s) in results)]  # a finalist not yet run waits, not blocks
     common = sorted(s for s in {s for (_n, s) in results} if all((n, s) in results for n in compared))
@@ -346,7 +384,11 @@ def standings(
     def rank(st: RaceStanding) -> tuple[float, ...]:
         return (-float(st.finalist), order.get(st.number, math.inf), -len(st.scores), -st.mean, field.index(st.number))
 
-    return sorted(out, key=rank)
+    ranked = sorted(out, key=rank)
+    leader = tail_leader(field, results, seeds_per_round)
+    if leader is not None and leader != ranked[0].number:  # the tail overturned the halving (``tail_leader``)
+        ranked.sort(key=lambda st: st.number != leader)
+    return ranked
 
 
 def provisional_standings(

@@ -288,7 +288,16 @@ def tail_leader(
     winner's 55 seeds then averaged 74.02 (4 under 70, the lowest 60.44), and it scored 72.70 on 3 fresh seeds
     (one 69.05), its rival 74.68. Of seven stored races this rule changes two picks: that one, and seed 1's (a
     27-seed mean of 74.37 against 74.85 on 4; on the fresh seeds 75.26 for the winner, 75.06 for the rival)."""
-    alive, rnd, done, last = _survivors(list(field), results, seeds_per_round)
+    return _leader(_survivors(list(field), results, seeds_per_round), results, seeds_per_round)
+
+
+def _leader(
+    survivors: tuple[list[int], int, bool, list[int]],
+    results: Mapping[tuple[int, int], float | None],
+    seeds_per_round: int,
+) -> int | None:
+    """``tail_leader`` from the halving's state (``_survivors``), which ``standings`` has already."""
+    alive, rnd, done, last = survivors
     if len(alive) != 1 or not (done or rnd > 0):
         return None
     winner = alive[0]
@@ -370,7 +379,8 @@ def standings(
     they got (fresh seeds finished), then their mean. Ties keep the field's order.
     """
     field = list(field)
-    alive, _rnd, _done, _last = _survivors(field, results, seeds_per_round)
+    survivors = _survivors(field, results, seeds_per_round)
+    alive = survivors[0]
     finalists = set(alive)
     compared = [n for n in alive if any(m == n for (m, _s) in results)]  # a finalist not yet run waits, not blocks
     common = sorted(s for s in {s for (_n, s) in results} if all((n, s) in results for n in compared))
@@ -385,7 +395,7 @@ def standings(
         return (-float(st.finalist), order.get(st.number, math.inf), -len(st.scores), -st.mean, field.index(st.number))
 
     ranked = sorted(out, key=rank)
-    leader = tail_leader(field, results, seeds_per_round)
+    leader = _leader(survivors, results, seeds_per_round)
     if leader is not None and leader != ranked[0].number:  # the tail overturned the halving (``tail_leader``)
         ranked.sort(key=lambda st: st.number != leader)
     return ranked

@@ -708,11 +708,11 @@ def race_summary(storages: Storages, study_name: str) -> dict[str, Any] | None:
 
     Before the race (no field stored yet), a provisional standing (``"provisional": True``): the
     configurations with ``racing.PROVISIONAL_SEEDS`` fresh-seed runs so far, by their mean; None when none has.
-    The winner (``racing.standings``) is the finalist ranked first by
-    paired signed ranks, then mean, on the fresh seeds every finalist has a result for (``ranked_on`` of them;
-    a run the deadline stopped is left out for all): the configuration to retrain, as opposed to the best
-    single net (the leaderboard's number). An entrant raced at a kept rung's budget (``budget``, else None) was
-    selected by that rung's score.
+    The winner (``racing.standings``) is the finalist ranked first by paired signed ranks, then mean, on the fresh
+    seeds every finalist has a result for (``ranked_on`` of them; a run the deadline stopped is left out for all):
+    the configuration to retrain, as opposed to the best single net (the leaderboard's number). Once that winner's
+    tail falls below a rival of its last round, the rival is the winner row instead (``racing.tail_leader``; not a
+    finalist). An entrant raced at a kept rung's budget (``budget``, else None) was selected by that rung's score.
     """
     from autotune.search import racing
 

@@ -304,11 +304,9 @@ def _leader(
     if not any(n == winner and s >= rnd * seeds_per_round for (n, s) in results):
         return winner  # no tail yet: the halving's verdict stands
 
-    def mean(number: int) -> float:
-        scores = [v for (n, _s), v in results.items() if n == number]
-        if not scores or any(v is None or not math.isfinite(v) for v in scores):
-            return -math.inf
-        return statistics.fmean(float(v) for v in scores if v is not None)
+    def mean(number: int) -> float:  # over all its seeds; a failed run (−inf, ``_results``) leaves it no mean
+        scores = _results(number, results, [s for (n, s) in results if n == number])
+        return statistics.fmean(scores) if scores else -math.inf
 
     return max(last, key=lambda n: (mean(n), n == winner, -last.index(n)))
 

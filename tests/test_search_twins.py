@@ -366,3 +366,115 @@ def test_the_linear_configuration_with_the_best_seed_mean_gets_neighbours_so_a_b
     assert waiting_of(neighbour) == [p for p in twins.neighbours(moved, driver.spec.space)
                                      if p not in [t.params for t in study.trials]]  # fmt: skip
     assert waiting_of(neighbour)
+
+
+# -- their share of the time ([study] side_share) ---------------------------------------------
+
+
+def test_side_share_is_checked() -> None:
+    assert _spec().study.side_share == 1.0 and "side_share" not in _spec().to_dict()["study"]  # as stored before
+    spec = _spec(linear_twins=RATES, side_share=0.25)
+    assert spec.study.side_share == 0.25 and spec.to_dict()["study"]["side_share"] == 0.25
+    assert parse_spec(spec.to_dict(), source="twins.toml") == spec
+    with pytest.raises(SpecError, match=r"\[study\] side_share: 0 would never start a linear twin or neighbour; "
+                                        r"turn them off instead"):  # fmt: skip
+        _spec(linear_twins=RATES, side_share=0)
+    with pytest.raises(SpecError, match=r"\[study\] side_share: 1.5 is out of range; use \[0, 1\]"):
+        _spec(linear_twins=RATES, side_share=1.5)
+    with pytest.raises(SpecError, match=r"side_share: caps the time of linear twins and neighbours, but neither is "
+                                        r"on; set linear_twins"):  # fmt: skip
+        _spec(side_share=0.5)
+    with pytest.raises(SpecError, match=r"\[study\] side_shar: unknown key.*side_share"):
+        _spec(linear_twins=RATES, side_shar=0.5)
+
+
+def _waiting(study: optuna.Study) -> list[Any]:
+    return study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+
+
+def test_with_a_side_share_twins_wait_in_a_plan_and_start_one_at_a_time_while_their_share_allows(
+    tmp_path: Path,
+) -> None:
+    driver, study, dists = _driver(tmp_path, side_share=0.25)
+    hidden = space.encode(driver.spec, HIDDEN)
+    first = _add(study, dists, hidden, 73.0, [(400, 70.0), (1200, 73.0)], **{keys.TRIAL_WALL_SECONDS: 100.0})
+    driver._enqueue_twins()  # noqa: SLF001
+    assert not _waiting(study)  # planned, not enqueued
+    plan = study.user_attrs[keys.SIDE_PLAN]
+    assert [(e["params"]["method"], e["params"][LR_X_INPUTS], e["released"]) for e in plan] == [
+        ("adagrad", 3.0, False), ("adagrad", 10.0, False), ("sgd", 0.03, False)]  # fmt: skip
+    assert all(e["user_attrs"] == {keys.TWIN_OF: first, keys.LADDER_TOP: 1} for e in plan)
+    driver._enqueue_twins()  # noqa: SLF001 - planned counts as done: once per parent
+    assert len(study.user_attrs[keys.SIDE_PLAN]) == 3
+
+    driver._release_side()  # noqa: SLF001 - no side time yet: the oldest starts
+    waiting = _waiting(study)
+    assert [t.system_attrs["fixed_params"]["method"] for t in waiting] == ["adagrad"]
+    assert waiting[0].user_attrs == {keys.TWIN_OF: first, keys.LADDER_TOP: 1}
+    driver._release_side()  # noqa: SLF001 - one waits already: no other
+    assert len(_waiting(study)) == 1
+    assert driver._launch_next(0)  # noqa: SLF001
+    twin = driver._running.pop(0).trial  # noqa: SLF001
+    task = driver.pool.tasks[-1]
+    driver._finish(twin, TrialOutcome(twin.number, "complete", 72.0, None, {  # noqa: SLF001
+        keys.CONFIG: task.config, keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: 72.0}],
+        keys.TRIAL_WALL_SECONDS: 60.0}))  # fmt: skip
+    driver._release_side()  # noqa: SLF001 - twins 60 s of 160: over a quarter, the search draws
+    assert not _waiting(study)
+    _add(study, dists, {**hidden, "lanes_side": 2}, 70.0, [(1200, 70.0)], **{keys.TRIAL_WALL_SECONDS: 60.0})
+    driver._release_side()  # noqa: SLF001 - 60 of 220: still over
+    assert not _waiting(study)
+    _add(study, dists, {**hidden, "lanes_side": 0}, 70.0, [(1200, 70.0)], **{keys.TRIAL_WALL_SECONDS: 20.0})
+    driver._release_side()  # noqa: SLF001 - 60 of 240: the next twin
+    assert [t.system_attrs["fixed_params"][LR_X_INPUTS] for t in _waiting(study)] == [10.0]
+    assert [e["released"] for e in study.user_attrs[keys.SIDE_PLAN]] == [True, True, False]
+
+    # a resumed study goes on from its stored plan: the third twin, once, and no plan twice
+    again = Driver(driver.spec, open_storage(driver.spec.study.storage, driver.spec.study.name))
+    again_study = again.open_study()
+    again.pool, again._t0 = FakePool(), time.perf_counter()  # noqa: SLF001
+    assert again._launch_next(0)  # noqa: SLF001 - the waiting twin
+    again._running.clear()  # noqa: SLF001
+    again._enqueue_twins()  # noqa: SLF001
+    again._release_side()  # noqa: SLF001 - its running time is not counted: 60 of 240
+    assert [t.system_attrs["fixed_params"]["method"] for t in _waiting(again_study)] == ["sgd"]
+    again._launch_next(0)  # noqa: SLF001
+    again._running.clear()  # noqa: SLF001
+    again._release_side()  # noqa: SLF001 - the plan is spent
+    assert not _waiting(again_study) and all(e["released"] for e in again_study.user_attrs[keys.SIDE_PLAN])
+
+
+def test_a_running_twin_counts_and_nothing_starts_from_the_plan_in_the_race_window(tmp_path: Path) -> None:
+    driver, study, dists = _driver(tmp_path, side_share=0.5)
+    hidden = space.encode(driver.spec, HIDDEN)
+    _add(study, dists, hidden, 73.0, [(1200, 73.0)], **{keys.TRIAL_WALL_SECONDS: 10.0})
+    driver._enqueue_twins()  # noqa: SLF001
+    driver._release_side()  # noqa: SLF001
+    assert driver._launch_next(0)  # noqa: SLF001
+    driver._running[0].started -= 100.0  # noqa: SLF001 - the twin has run 100 s: 100 of 110
+    driver._release_side()  # noqa: SLF001
+    assert not _waiting(study)
+    driver._running.clear()  # noqa: SLF001 - (gone: 0 of 10, the next would start)
+    driver._t0 = time.perf_counter() - 3600 * 0.8  # noqa: SLF001 - but in the seed race's time, none does
+    driver._release_side()  # noqa: SLF001
+    assert not _waiting(study) and [e["released"] for e in study.user_attrs[keys.SIDE_PLAN]] == [True, False, False]
+    driver._t0 = time.perf_counter()  # noqa: SLF001
+    driver._release_side()  # noqa: SLF001
+    assert len(_waiting(study)) == 1
+
+
+def test_with_a_side_share_neighbours_are_planned_too_once_per_parent(tmp_path: Path) -> None:
+    driver, study, dists = _driver(tmp_path, seed_soups=[2], linear_neighbours=True, side_share=0.5)
+    linear = {**space.encode(driver.spec, HIDDEN.replace(layers="", method="adagrad")), "lanes_side": 1,
+              "patches_ahead": 3, LR_X_INPUTS: 1.0}  # fmt: skip
+    owner = _add(study, dists, linear, 73.0, [(1200, 73.0)])
+    seed = _add(study, dists, linear, 73.5, [(1200, 73.5)], **{keys.RACE_OF: owner, keys.RACE_SEED: 0})
+    _add(study, dists, linear, 74.0, [], **{keys.SEED_SOUP_OF: owner, keys.SOUP_OF: [owner, seed],
+                                           keys.REFINE_OF: {"trial": seed, "budget": None, "score": 73.5}})  # fmt: skip
+    driver._enqueue_neighbours()  # noqa: SLF001
+    driver._enqueue_neighbours()  # noqa: SLF001
+    plan = study.user_attrs[keys.SIDE_PLAN]
+    assert [e["params"] for e in plan] == twins.neighbours(linear, driver.spec.space) and not _waiting(study)
+    assert all(e["user_attrs"] == {keys.NEIGHBOUR_OF: owner, keys.LADDER_TOP: 1} for e in plan)
+    driver._release_side()  # noqa: SLF001
+    assert [t.system_attrs["fixed_params"] for t in _waiting(study)] == [plan[0]["params"]]

@@ -1323,6 +1323,7 @@ class Driver:
         while True:
             if not self._out_of_time():
                 for slot in self.pool.idle_slots(set(self._running)):
+                    self._release_side()
                     if self._launch_seed_soup(slot):
                         continue  # seconds of evaluation: before the race's runs and the search's
                     if self._race_window() and self._race_slot(slot):
@@ -1580,7 +1581,7 @@ class Driver:
         if not st.linear_twins or self._out_of_time() or self._race_window():
             return
         trials = self.study.get_trials(deepcopy=False)
-        done = {t.user_attrs.get(keys.TWIN_OF) for t in trials}
+        done = {t.user_attrs.get(keys.TWIN_OF) for t in trials} | self._planned(keys.TWIN_OF)
         sources = twins.parents(trials, self._twin_score, st.linear_twin_span)
         own = self._prior_free(trials)
         if own is not None:  # and the prior-free sampler's best (``[study] prior_free_share``)
@@ -1595,7 +1596,7 @@ class Driver:
             if self.spec.ladder and budget in self.spec.ladder:  # its twins train as long as its best net did
                 user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
             for params in twins.twins(source.params, st.linear_twins):
-                self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
+                self._plan_side(params, user)
 
     def _enqueue_neighbours(self) -> None:
         """Enqueue the neighbours (``[study] linear_neighbours``, ``twins.neighbours``) of two linear configurations,
@@ -1611,7 +1612,7 @@ class Driver:
         if not self.spec.study.linear_neighbours or self._out_of_time() or self._race_window():
             return
         trials = self.study.get_trials(deepcopy=False)
-        done = {t.user_attrs.get(keys.NEIGHBOUR_OF) for t in trials}
+        done = {t.user_attrs.get(keys.NEIGHBOUR_OF) for t in trials} | self._planned(keys.NEIGHBOUR_OF)
         for owner, params, budget in self._neighbour_parents(trials):
             if owner in done:
                 continue
@@ -1620,7 +1621,62 @@ class Driver:
             if self.spec.ladder and budget in self.spec.ladder:  # its neighbours train as long as its nets did
                 user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
             for moved in twins.neighbours(params, self.spec.space):
-                self.study.enqueue_trial(moved, user_attrs=user, skip_if_exists=True)
+                self._plan_side(moved, user)
+
+    def _plan_side(self, params: dict[str, Any], user: dict[str, Any]) -> None:
+        """Enqueue a linear twin or neighbour now, or with ``[study] side_share`` < 1 add it to the study's side plan
+        (``keys.SIDE_PLAN``), which ``_release_side`` enqueues from while their share of the time allows."""
+        assert self.study is not None
+        if self.spec.study.side_share >= 1.0:
+            self.study.enqueue_trial(params, user_attrs=user, skip_if_exists=True)
+            return
+        plan = list(self.study.user_attrs.get(keys.SIDE_PLAN) or [])
+        if all(e["params"] != params for e in plan):
+            self.study.set_user_attr(keys.SIDE_PLAN, [*plan, {"params": params, "user_attrs": user, "released": False}])
+
+    def _planned(self, key: str) -> set[Any]:
+        """The parents (``key``: ``twin_of`` or ``neighbour_of``) of the side plan's entries: planned is done."""
+        assert self.study is not None
+        return {e["user_attrs"].get(key) for e in self.study.user_attrs.get(keys.SIDE_PLAN) or []}
+
+    def _release_side(self) -> None:
+        """Enqueue the side plan's oldest entry not yet released, while nothing else waits
+        and the twins and neighbours have taken at most ``[study] side_share`` of the workers' time so far (their
+        finished trials' wall seconds and the running ones' so far, against every trial's); before the race only.
+
+        Why: each is one unpruned training at its parent's budget, and each new best or leader enqueues 3–10 of
+        them. A cold hour (study seed 1) whose early best was a linear net at 810k (73.18; its seeds 67.7 and 73.7)
+        spent 58 % of its first 30 minutes on 8 twins and 10 neighbours (~150 s each, none above 73.92), the search
+        33 %, and stood at 73.92 at 30 minutes, where the same seed had reached 75.68 before. In the crowd-prior
+        hours they took 9–27 % of the first 30 minutes (each ~10–40 s)."""
+        assert self.study is not None
+        share = self.spec.study.side_share
+        if share >= 1.0 or self._out_of_time() or self._race_window():
+            return
+        plan = self.study.user_attrs.get(keys.SIDE_PLAN) or []
+        if not plan:
+            return
+        trials = self.study.get_trials(deepcopy=False)
+        if any(t.state == TrialState.WAITING for t in trials):
+            return
+        side = total = 0.0
+        for t in trials:
+            if t.state == TrialState.RUNNING:
+                continue
+            seconds = float(t.user_attrs.get(keys.TRIAL_WALL_SECONDS) or 0.0)
+            total += seconds
+            side += seconds if _side(t.user_attrs) else 0.0
+        now = time.perf_counter()
+        for run in self._running.values():
+            total += now - run.started
+            side += now - run.started if _side(run.trial.user_attrs) else 0.0
+        if side > share * total:
+            return
+        for i, entry in enumerate(plan):
+            if not entry.get("released"):
+                self.study.enqueue_trial(entry["params"], user_attrs=entry["user_attrs"], skip_if_exists=True)
+                self.study.set_user_attr(keys.SIDE_PLAN, [*plan[:i], {**entry, "released": True}, *plan[i + 1 :]])
+                return
 
     def _prior_free(self, trials: Sequence[FrozenTrial]) -> list[FrozenTrial] | None:
         """With ``[study] prior_free_share``: the prior-free sampler's draws and the trials made from them
@@ -1800,6 +1856,11 @@ def _best_score(trials: Sequence[FrozenTrial], fresh: bool = False) -> float | N
     """The study's best single net's score (``_best_net``); None before any."""
     best = _best_net(trials, fresh)
     return None if best is None else best[0]
+
+
+def _side(attrs: Mapping[str, Any]) -> bool:
+    """Whether a trial's user attrs mark a linear twin or neighbour (``[study] side_share``)."""
+    return keys.TWIN_OF in attrs or keys.NEIGHBOUR_OF in attrs
 
 
 def _original(t: FrozenTrial) -> bool:

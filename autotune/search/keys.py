@@ -175,6 +175,10 @@ RACE_FIELD: Final = "race_field"
 """Seed race: its entrants (trial numbers, best first), frozen when the race starts."""
 RACE_BUDGETS: Final = "race_budgets"
 """Seed race: {trial number: budget} of the entrants raced at a kept rung's budget (absent: the trial's own)."""
+SIDE_PLAN: Final = "side_plan"
+"""Linear twins and neighbours planned (``[study] side_share`` < 1): [{params, user_attrs, released}, …] in the order
+they were planned; the oldest not released is enqueued while their share of the workers' time allows
+(``Driver._release_side``)."""
 WARM_STARTED: Final = "warm_start:"
 """Prefix of the study attrs that record a warm start done: ``warm_start:crowd`` / ``warm_start:<study>`` → count."""
 

@@ -9,7 +9,8 @@ Five tables, every key optional unless said otherwise::
                   refine_runs, refine_start, refine_soups, refine_soup_span, seed_soups, seed_soup_greedy,
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
                   linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours, seed_soup_leader,
-                  seed_soup_best, seed_soup_best_span, prior_free_share, seed_soup_views, balance_prune_apart
+                  seed_soup_best, seed_soup_best_span, prior_free_share, seed_soup_views, balance_prune_apart,
+                  side_share
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -337,6 +338,10 @@ class StudySection:
     """Balanced parameters whose floored values' trials the pruner judges among themselves (a whole-road view's
     draws halved against whole-road draws, not the crowd's region; ``balance.ApartPruner``), every other trial
     among the rest; (): all together."""
+    side_share: float = 1.0
+    """With linear_twins or linear_neighbours: the most of the workers' time so far that twins and neighbours may
+    have taken when the next one starts; the rest wait, in the order they came, while the search draws
+    (``Driver._release_side``); 1: each starts as soon as it is enqueued, before the sampler's next draw."""
 
     @property
     def cost_cap_s(self) -> float:
@@ -553,6 +558,8 @@ class StudySpec:
         for key in optional:  # likewise
             if not study[key]:
                 del study[key]
+        if study["side_share"] == 1.0:  # likewise (its default: no cap)
+            del study["side_share"]
         return {
             "study": study,
             "fixed": dict(self.fixed),
@@ -860,13 +867,21 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
         raise where.error("balance_prune_apart", f"must be a list of balanced parameters, each once, got {apart!r}",
                           'write balance_prune_apart = ["lanes_side"]')  # fmt: skip
     _check_balanced("balance_prune_apart", apart, balance, where)
+    side = _float(table.get("side_share", d.side_share), f"{src}: [study] side_share", 0.0, 1.0)
+    if side <= 0.0:
+        raise where.error("side_share", "0 would never start a linear twin or neighbour",
+                          "turn them off instead (linear_twins = {}, linear_neighbours = false), or give a share "
+                          "such as 0.33")  # fmt: skip
+    if side < 1.0 and not (twins or neighbours):
+        raise where.error("side_share", "caps the time of linear twins and neighbours, but neither is on",
+                          "set linear_twins or linear_neighbours = true, or remove side_share")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
-        best_seeds, best_span, prior_free, views, tuple(apart),
+        best_seeds, best_span, prior_free, views, tuple(apart), side,
     )  # fmt: skip
 
 

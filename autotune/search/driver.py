@@ -1517,6 +1517,7 @@ class Driver:
             # the worker starts its next trial before this one's storage writes (in the race window the loop
             # starts race runs instead, once this trial's result is stored: it may be an entrant; after an
             # incumbent's or a refinement run too: its score decides the next one)
+            self._release_side()
             if not self._launch_refine(event.slot) and not self._launch_incumbent(event.slot):
                 self._launch_next(event.slot)
         if event.kind == "lost":

@@ -19,6 +19,7 @@ from autotune.search.gate import distributions
 from autotune.search.objective import TrialOutcome
 from autotune.search.spec import LR_X_INPUTS, Dimension, SpecError, StudySpec, parse_spec
 from autotune.search.storage import open_storage
+from autotune.search.workers import Event
 from tests.conftest import FakePool
 
 COMPLETE = optuna.trial.TrialState.COMPLETE
@@ -478,3 +479,20 @@ def test_with_a_side_share_neighbours_are_planned_too_once_per_parent(tmp_path: 
     assert all(e["user_attrs"] == {keys.NEIGHBOUR_OF: owner, keys.LADDER_TOP: 1} for e in plan)
     driver._release_side()  # noqa: SLF001
     assert [t.system_attrs["fixed_params"] for t in _waiting(study)] == [plan[0]["params"]]
+
+
+def test_a_worker_whose_trial_finished_starts_the_planned_twin_next(tmp_path: Path) -> None:
+    """The driver starts a worker's next trial as soon as its last one is done, before storing that one; the plan is
+    released there too (the idle-slot loop alone left a cold hour's 8 planned twins unstarted for 10 minutes)."""
+    driver, study, dists = _driver(tmp_path, side_share=0.5)
+    hidden = space.encode(driver.spec, HIDDEN)
+    _add(study, dists, hidden, 73.0, [(1200, 73.0)], **{keys.TRIAL_WALL_SECONDS: 10.0})
+    driver._enqueue_twins()  # noqa: SLF001 - planned; a sampled trial runs on slot 0
+    study.enqueue_trial({**hidden, "lanes_side": 0})
+    assert driver._launch_next(0) and not driver._running[0].silent  # noqa: SLF001
+    task = driver.pool.tasks[-1]
+    driver._handle(Event("done", 0, outcome=TrialOutcome(driver._running[0].trial.number, "pruned", None, "pruned", {  # noqa: SLF001
+        keys.CONFIG: task.config, keys.RUNGS: [{keys.BUDGET: 400, keys.SCORE: 60.0}],
+        keys.TRIAL_WALL_SECONDS: 5.0})))  # fmt: skip
+    assert driver._running[0].silent and driver.pool.tasks[-1].config["layers"] == ""  # noqa: SLF001 - the twin
+    assert driver._running[0].trial.user_attrs[keys.TWIN_OF] == 0  # noqa: SLF001

@@ -1641,15 +1641,16 @@ class Driver:
         return {e["user_attrs"].get(key) for e in self.study.user_attrs.get(keys.SIDE_PLAN) or []}
 
     def _release_side(self) -> None:
-        """Enqueue the side plan's oldest entry not yet released, while nothing else waits
-        and the twins and neighbours have taken at most ``[study] side_share`` of the workers' time so far (their
-        finished trials' wall seconds and the running ones' so far, against every trial's); before the race only.
+        """Enqueue the side plan's oldest entry not yet released, while nothing else waits and the twins and
+        neighbours have taken at most ``[study] side_share`` of the workers' time so far (their finished trials' wall
+        seconds and the running ones' so far, against every trial's); before the race only.
 
         Why: each is one unpruned training at its parent's budget, and each new best or leader enqueues 3–10 of
         them. A cold hour (study seed 1) whose early best was a linear net at 810k (73.18; its seeds 67.7 and 73.7)
         spent 58 % of its first 30 minutes on 8 twins and 10 neighbours (~150 s each, none above 73.92), the search
-        33 %, and stood at 73.92 at 30 minutes, where the same seed had reached 75.68 before. In the crowd-prior
-        hours they took 9–27 % of the first 30 minutes (each ~10–40 s)."""
+        33 %, and stood at 73.92 / 74.30 at 30 / 60 minutes; capped at a third, the same seed's search found a
+        linear family at 14.9 min whose soups reached 74.88 / 75.02. The crowd-prior hours gave them 9–27 % of the
+        first 30 minutes (each ~10–40 s), under that cap."""
         assert self.study is not None
         share = self.spec.study.side_share
         if share >= 1.0 or self._out_of_time() or self._race_window():

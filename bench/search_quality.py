@@ -40,7 +40,9 @@ Per run, from the trial records: the cost model's median |actual − predicted| 
 COMPLETE trials that stored ``predicted_cost_s`` before training; the share of worker time (workers ×
 the arm's wall) spent in trials stopped by a limit (cause ``timeout…``); the worst trial wall time /
 ``trial_timeout_s``; the share of sampler draws refused (``refused_draws``), where stored; the pruned
-trials by cause (the pruner, not learning, static, diverged, a limit).
+trials by cause (the pruner, not learning, static, diverged, a limit); and at each checkpoint the share of the
+workers' time each kind of trial took (the search's draws, warm-start settings, twins and neighbours, seed runs,
+the race, refinement runs, soups: ``time_shares``).
 
 ``--calibration N`` (a spec with a [ladder]): N configurations drawn from the service's own space
 (``space.sample`` with a seeded RandomSampler, ``space.to_config`` per rung, as the driver builds
@@ -557,6 +559,8 @@ class TrialRow:
     """A refinement run (``[study] refine_share``): the trial whose net it trained on from."""
     soup: bool = False
     """A weight soup (``[study] refine_soups``): a refinement trial that averaged runs' weights, training nothing."""
+    side: bool = False
+    """A linear twin or neighbour (``twin_of`` / ``neighbour_of``: ``[study] linear_twins``, ``linear_neighbours``)."""
     predicted_cost_s: float | None = None
     cause: str | None = None
     retryable: bool = False
@@ -590,6 +594,7 @@ def rows_from_trials(trials: Iterable[Any], t0: float) -> list[TrialRow]:
                 seed_run=bool(a.get("seed_soup_run")),
                 refine_of=(a.get("refine_of") or {}).get("trial"),
                 soup="soup_of" in a,
+                side="twin_of" in a or "neighbour_of" in a,
                 predicted_cost_s=a.get("predicted_cost_s"),
                 cause=a.get("cause"),
                 retryable=bool(a.get("retryable")),
@@ -835,6 +840,49 @@ def run_figures(rows: Sequence[TrialRow], wall_s: float, workers: int, limit_s: 
         **incumbent_figures(rows, workers * wall_s),
         **refine_figures(rows, workers * wall_s),
     }
+
+
+SHARE_KINDS = ("search", "warm start", "twins and neighbours", "seed runs", "incumbent runs", "race", "refinement",
+               "soups")  # fmt: skip
+"""What a trial spent worker time on (``trial_kind``), in the order the shares are printed."""
+
+
+def trial_kind(r: TrialRow) -> str:
+    """The ``SHARE_KINDS`` entry of a trial: a weight soup, another refinement run, a twin or neighbour, a race run
+    (a seed-soup run or an incumbent run started before the race apart), an enqueued warm-start setting, else a
+    sampler draw (the search)."""
+    if r.soup:
+        return "soups"
+    if r.refine_of is not None:
+        return "refinement"
+    if r.side:
+        return "twins and neighbours"
+    if r.seed_run:
+        return "seed runs"
+    if r.incumbent:
+        return "incumbent runs"
+    if r.race_of is not None:
+        return "race"
+    if r.warm_start is not None:
+        return "warm start"
+    return "search"
+
+
+def time_shares(rows: Iterable[TrialRow], until_s: float, workers: int) -> dict[str, float]:
+    """Share of the workers' time up to ``until_s`` (``workers`` × ``until_s``) that each kind of trial took
+    (``trial_kind``; kinds that took none left out): a finished trial's busy time (``wall_s``, ending at ``end_s``)
+    counted where it falls before ``until_s``. What the shares leave to 1 is time outside trials (start-up, the
+    driver's turns, idle workers). Why: how an hour is spent (the search against twins, seed runs, soups and the
+    race) is what the study's time keys (``side_share``, ``refine_share``, ``race_fraction``) trade."""
+    total = workers * until_s
+    busy: dict[str, float] = {}
+    for r in rows:
+        if r.end_s is None or not r.wall_s:
+            continue
+        overlap = min(r.end_s, until_s) - max(r.end_s - r.wall_s, 0.0)
+        if overlap > 0:
+            busy[trial_kind(r)] = busy.get(trial_kind(r), 0.0) + overlap
+    return {k: busy[k] / total for k in SHARE_KINDS if k in busy and total > 0}
 
 
 def incumbent_figures(rows: Sequence[TrialRow], worker_s: float) -> dict[str, Any]:
@@ -1171,6 +1219,7 @@ def run_arm(arm: str, seed: int, args: argparse.Namespace, ctx: dict[str, Any]) 
         "errors": info["errors"],
         **run_figures(rows, info["wall_s"], args.workers, float(ctx["spec"].study.trial_timeout_s)),
         "checkpoints": checkpoint_picks(rows, ctx["minutes"], race),
+        "time_shares": [{"minutes": m, "shares": time_shares(rows, m * 60.0, args.workers)} for m in ctx["minutes"]],
     }
     for e in info["errors"]:
         print(f"  {arm} s{seed}: {e}", file=sys.stderr)
@@ -1335,6 +1384,9 @@ def format_table(result: Mapping[str, Any]) -> list[str]:
                 f"{run.get('refine_root')}), reseeding "
                 f"{_f(run.get('reseed_wall_s'), '.0f')} s, load {run['load_start']} → {run['load_end']}"
             )
+            for ts in run.get("time_shares", []):
+                shares = ", ".join(f"{k} {_pct(v)}" for k, v in ts["shares"].items()) or "none"
+                lines.append(f"  {arm} s{run['study_seed']}: worker time to {ts['minutes']:g} min: {shares}")
     ref = result.get("reference") or {}
     if ref.get("id"):
         lines.append(

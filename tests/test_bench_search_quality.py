@@ -148,6 +148,10 @@ def test_rows_from_trials_reads_the_contract_attrs() -> None:
     assert (rows[0].value, rows[0].seed, rows[0].wall_s, rows[0].predicted_cost_s) == (70.0, 5, 2.0, 3.0)
     assert rows[0].warm_start == "crowd:x" and rows[0].config == {"a": 1} and rows[1].cause == "timeout"
     assert rows[1].value is None and all(0 <= r.end_s < 60 for r in rows)
+    assert not rows[0].side and not rows[1].side
+    for key in ("twin_of", "neighbour_of"):
+        twin = optuna.trial.create_trial(value=71.0, user_attrs={key: 0, "trial_wall_seconds": 1.0})
+        assert sq.rows_from_trials([twin], t0)[0].side
 
 
 def test_best_single_and_the_best_not_enqueued() -> None:
@@ -295,6 +299,34 @@ def test_running_best_and_the_run_figures() -> None:
     assert sq.pruned_by(pruned + rows[:2]) == {
         "not learning": 2, "by the pruner": 1, "deadline": 1, "diverged": 1, "other": 1, "static": 1,
     }  # fmt: skip
+
+
+def test_time_shares_split_the_workers_time_by_kind_up_to_a_checkpoint() -> None:
+    rows = [
+        row(0, 70.0, 60, wall_s=60.0),  # a draw: 0–60 s
+        row(1, 71.0, 50, wall_s=40.0, warm_start="crowd:a"),  # 10–50 s
+        row(2, 72.0, 120, wall_s=60.0, side=True),  # 60–120 s: half of it after the 90-s checkpoint
+        row(3, 73.0, 100, wall_s=30.0, race_of=2, seed_run=True),
+        row(4, 74.0, 110, wall_s=10.0, race_of=2),
+        row(5, 75.0, 115, wall_s=5.0, refine_of=2, soup=True),
+        row(6, 74.5, 80, wall_s=20.0, refine_of=2),
+        row(7, None, 30, wall_s=30.0, state="PRUNED"),  # a pruned draw counts too
+        row(8, None, None, wall_s=None, state="RUNNING"),  # unfinished: not counted
+    ]
+    assert [sq.trial_kind(r) for r in rows[:7]] == [
+        "search", "warm start", "twins and neighbours", "seed runs", "race", "soups", "refinement",
+    ]  # fmt: skip
+    early = sq.time_shares(rows, 90.0, 2)
+    assert early == {
+        "search": pytest.approx(90 / 180), "warm start": pytest.approx(40 / 180),
+        "twins and neighbours": pytest.approx(30 / 180), "seed runs": pytest.approx(20 / 180),
+        "refinement": pytest.approx(20 / 180),
+    }  # fmt: skip
+    assert list(early) == ["search", "warm start", "twins and neighbours", "seed runs", "refinement"]
+    late = sq.time_shares(rows, 120.0, 2)
+    assert late["race"] == pytest.approx(10 / 240) and late["soups"] == pytest.approx(5 / 240)
+    assert sum(late.values()) == pytest.approx((60 + 40 + 60 + 30 + 10 + 5 + 20 + 30) / 240)
+    assert sq.time_shares([], 60.0, 2) == {} and sq.time_shares(rows, 0.0, 2) == {}
 
 
 def test_arm_checkpoints_are_medians_over_runs() -> None:

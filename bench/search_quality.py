@@ -881,7 +881,8 @@ def time_shares(rows: Iterable[TrialRow], until_s: float, workers: int) -> dict[
             continue
         overlap = min(r.end_s, until_s) - max(r.end_s - r.wall_s, 0.0)
         if overlap > 0:
-            busy[trial_kind(r)] = busy.get(trial_kind(r), 0.0) + overlap
+            kind = trial_kind(r)
+            busy[kind] = busy.get(kind, 0.0) + overlap
     return {k: busy[k] / total for k in SHARE_KINDS if k in busy and total > 0}
 
 

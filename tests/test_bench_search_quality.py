@@ -316,6 +316,7 @@ def test_time_shares_split_the_workers_time_by_kind_up_to_a_checkpoint() -> None
     assert [sq.trial_kind(r) for r in rows[:7]] == [
         "search", "warm start", "twins and neighbours", "seed runs", "race", "soups", "refinement",
     ]  # fmt: skip
+    assert sq.trial_kind(row(9, 70.0, 10, race_of=2, incumbent=True)) == "incumbent runs"
     early = sq.time_shares(rows, 90.0, 2)
     assert early == {
         "search": pytest.approx(90 / 180), "warm start": pytest.approx(40 / 180),

@@ -20,16 +20,12 @@ how far depends on the configuration: in crowd-prior hours the soups of gsurma's
 ahead, 7 behind, γ 0.9) stopped at 75.35 and 75.57 over 43 and 64 seeds, those of a search trial's linear twin (5
 lanes a side, 15 ahead, 9 behind, γ 0.72) reached 75.72 in the hour and 75.80 offline. So once a linear
 configuration's seed soup is the study's best net, or it is the linear configuration with the best mean over its
-fresh seeds, its neighbours — its parameters with one of γ (as 1 − γ), the temporal window, the view or the rate
-moved one step (``NEIGHBOUR_STEPS``) — are enqueued once, trained like twins; each being linear, it gets probe
-seeds and soups, and one whose soups become the best net, or whose seeds' mean leads, gets its neighbours in turn:
-a climb on the mean over seeds, the measure the seed race and ``autotune best`` rank configurations by.
+fresh seeds, its neighbours — its parameters with one of γ (as 1 − γ), the view or the rate moved one step
+(``NEIGHBOUR_STEPS``) — are enqueued once, trained like twins; each being linear, it gets probe seeds and soups,
+and one whose soups become the best net, or whose seeds' mean leads, gets its neighbours in turn: a climb on the
+mean over seeds, the measure the seed race and ``autotune best`` rank configurations by.
 Outside a study, 6 seeds each of gsurma's adagrad twin and of its neighbours greedily souped at 74.83 for the
 twin and at 75.42 (a lane a side less), 75.25 (γ 0.8), 75.06, 75.02, 74.85, 74.66, 74.52, 74.30, 73.98 for them.
-The temporal window is a step too: the cold hours that missed 75.0 settled early on linear leaders with windows of
-4–5 (study seed 2) and 9–10 (seed 3), ~1,300–3,000 inputs, slow to train (270 and 187 trials in the hour against
-seed 0's 1,200), and no neighbour could leave them: the view steps move the lanes and patches, the window
-multiplies their inputs.
 
 Pure functions of params and trials; ``autotune.search.driver`` enqueues what they return.
 """
@@ -54,15 +50,14 @@ their configuration's first measure), copied history, or a twin or neighbour its
 
 NEIGHBOUR_STEPS: tuple[tuple[str, str, float], ...] = (
     ("one_minus_gamma", "×", 0.5), ("one_minus_gamma", "×", 2.0),
-    ("temporal_window", "×", 0.5), ("temporal_window", "×", 2.0),
     ("lanes_side", "+", -1), ("lanes_side", "+", 1),
     ("patches_ahead", "×", 0.75), ("patches_ahead", "×", 4 / 3),
     ("patches_behind", "+", -2), ("patches_behind", "+", 2),
     (LR_X_INPUTS, "×", 0.5), (LR_X_INPUTS, "×", 2.0),
 )  # fmt: skip
-"""(parameter, × or +, step) of each neighbour, in order: 1 − γ halved and doubled, the temporal window halved and
-doubled (none moves from 0: halved or doubled it stays 0), a lane a side less and more, a quarter of the patches
-ahead less and a third more, two patches behind less and more, the rate per input halved and doubled."""
+"""(parameter, × or +, step) of each neighbour, in order: 1 − γ halved and doubled, a lane a side less and more,
+a quarter of the patches ahead less and a third more, two patches behind less and more, the rate per input
+halved and doubled."""
 
 
 def twins(params: Mapping[str, Any], rates: Iterable[tuple[str, Sequence[float]]]) -> list[dict[str, Any]]:

@@ -31,10 +31,14 @@ was not enqueued (no ``warm_start``). ``--reference`` (a crowd submission id, de
 best v2 crowd setting our sgd learner replays) is retrained with the same seeds.
 
 ``--held-out`` (default ``1000000,2000000``; ``none`` skips): each checkpoint's best single net is scored again
-on runs the official protocol never plays — the ``custom`` protocol, ``--held-out-runs`` (500) runs seeded from
-each given seed — because the best net is a best-of-many over one fixed set of 500 official runs (seeded 1…500):
-the crowd-prior hours' best soups scored 0.2–0.3 mph higher on such runs than officially, jnorthrup-v05's net
-0.05 lower. Arms whose studies store no nets (the plain loop, random) have none to score.
+on runs the official protocol never plays, because the best net is a best-of-many over one fixed set of 500
+official runs (seeded 1…500): the ``v2-heldout`` protocol, the site's evaluation worker itself (one world, the
+runs coupled through ``reset()``, every temporal window carried from run to run) on ``--held-out-runs`` (500)
+runs from each given seed (run k ↦ Park–Miller seed s + k + 1); a v1 study's nets, on the ``custom`` protocol.
+Until 2026-12-06 the ``custom`` protocol scored them, whose fresh world per run scores a net with a temporal
+window apart from the same runs played officially: a cold hour's best nets (windows 7–8) scored 1.7–12 mph
+lower there on the official runs' own seeds, and within 0.3 of their official scores on the held-out runs of
+``v2-heldout``. Arms whose studies store no nets (the plain loop, random) have none to score.
 
 Per run, from the trial records: the cost model's median |actual − predicted| / actual over the
 COMPLETE trials that stored ``predicted_cost_s`` before training; the share of worker time (workers ×
@@ -88,7 +92,7 @@ sys.path.insert(0, str(ROOT))
 ARMS = ("plain", "random", "cold", "warm")
 SEEDED_ARMS = ("plain", "cold")  # --study-seeds repeats these; the others run with the first seed
 FRESH_SEED0 = 900_001  # fresh seeds FRESH_SEED0 + i, the same for every arm (no study draws them)
-HELD_OUT_SEEDS = (1_000_000, 2_000_000)  # `custom` protocol seeds: runs seeded s … s + runs − 1, never official ones
+HELD_OUT_SEEDS = (1_000_000, 2_000_000)  # `v2-heldout` seeds: runs seeded s + 1 … s + runs, never official ones
 HELD_OUT_RUNS = 500  # runs per held-out set: the official protocol's number
 REFERENCE_ID = "dt-gsurma-deep-traffic-v00"
 LAYOUT = ("n_layers", "neurons", "activation")
@@ -1155,9 +1159,10 @@ def reseed_scores(key: str, seeds: Sequence[int], cache: Mapping[str, Mapping[st
 def held_out_scores(
     journal: Path, study_name: str, nets: Iterable[tuple[int, int | None]], seeds: Sequence[int], runs: int
 ) -> dict[tuple[int, int | None], list[float] | str]:
-    """Per (trial, kept rung or None) of ``nets``: its stored net's site median on ``runs`` runs of the ``custom``
-    protocol from each of ``seeds``, scored as the study scored it (``records.stored_net``: a rung's own ε_test);
-    where the study or the net cannot be read, why (one line): an arm's figures are never lost to this score."""
+    """Per (trial, kept rung or None) of ``nets``: its stored net's site median on ``runs`` runs of the
+    ``held_out_protocol`` from each of ``seeds``, scored as the study scored it (``records.stored_net``: a rung's
+    own ε_test); where the study or the net cannot be read, why (one line): an arm's figures are never lost to this
+    score."""
     from autotune.learner.official import evaluate_official
     from autotune.search.records import read_study, stored_net
     from autotune.search.storage import open_storage
@@ -1176,10 +1181,19 @@ def held_out_scores(
         except ConfigError as exc:  # not stored, or stored damaged
             out[(number, budget)] = str(exc).splitlines()[0]
             continue
+        protocol = held_out_protocol(config.ruleset)
         out[(number, budget)] = [
-            float(evaluate_official(net, config, seed=s, protocol="custom", runs=runs).median_site) for s in seeds
+            float(evaluate_official(net, config, seed=s, protocol=protocol, runs=runs).median_site) for s in seeds
         ]
     return out
+
+
+def held_out_protocol(ruleset: str) -> str:
+    """The protocol of the held-out scores: v2's official harness on other runs (``v2-heldout``), so a net is
+    scored as the site scored it, its temporal window carried from run to run; v1 nets on ``custom``."""
+    from sim.protocols import CUSTOM, V2_HELDOUT
+
+    return V2_HELDOUT if ruleset == "v2" else CUSTOM
 
 
 def add_held_out(run: dict[str, Any], seeds: Sequence[int], runs: int) -> None:
@@ -1458,7 +1472,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--held-out",
         default=",".join(str(s) for s in HELD_OUT_SEEDS),
-        help="custom-protocol seeds on which each checkpoint's best net is scored again ('none' to skip)",
+        help="v2-heldout seeds (v1: custom) on which each checkpoint's best net is scored again ('none' to skip)",
     )
     p.add_argument("--held-out-runs", type=int, default=HELD_OUT_RUNS, help="runs per held-out seed (default 500)")
     p.add_argument("--calibration", type=int, default=30, help="configurations in the calibration set (0: none)")

@@ -9,6 +9,12 @@
 * ``v1-distribution`` (engine_spec.md §13): 200 × 10,000 frames, run i seeded ``seed + i``
   (default 1000). Independent worlds for memoryless policies; one world re-seeded per run for
   policies with memory (a network's temporal window persists across runs, as in the reference).
+* ``v2-heldout``: the ``v2-official`` harness — ``Math.random := mulberry32(1)``, a fresh engine load, 500
+  sequential runs coupled through ``reset()``, the agents' brain copies and every temporal window carried from
+  run to run — on runs it never plays: run k uses Park–Miller seed ``seed + k + 1`` (default 10⁶; seed 0 is
+  ``v2-official`` exactly). What a net's official score would have been on another draw of runs: ``custom``
+  starts every run in a fresh world, and a net with a temporal window scores there up to 12 mph apart from
+  the same runs played officially.
 * ``custom``: ``runs`` × ``frames`` as independent worlds, world i seeded ``seed + i`` (v2: its run
   uses Park–Miller seed ``seed + i``), stepped as one batch.
 
@@ -36,7 +42,7 @@ from sim.config import ConfigError, EngineConfig
 from sim.jsnumber import js_number_to_string
 from sim.layout import I_RUNS_DONE
 from sim.policies import BoundPolicy
-from sim.rng import mulberry32_advance
+from sim.rng import PM_MODULUS, mulberry32_advance
 from sim.simulator import Observation, Simulator
 
 
@@ -53,6 +59,7 @@ class Protocol:
 
 # protocol names: compare and pass these, never the strings
 V2_OFFICIAL = "v2-official"
+V2_HELDOUT = "v2-heldout"
 V1_ORIGINAL = "v1-original"
 V1_DISTRIBUTION = "v1-distribution"
 CUSTOM = "custom"
@@ -62,6 +69,7 @@ PROTOCOLS: dict[str, Protocol] = {
     p.name: p
     for p in (
         Protocol(V2_OFFICIAL, "v2", 500, 2000, 1, True, "site evaluation worker: 500 × 2,000, run k ↦ PM seed k+1"),
+        Protocol(V2_HELDOUT, "v2", 500, 2000, 1_000_000, True, "site evaluation worker, runs k ↦ PM seed seed+k+1"),
         Protocol(V1_ORIGINAL, "v1", 10, 100_000, 2000, True, "evaluate.js: 10 × 100,000 in one Math.random stream"),
         Protocol(V1_DISTRIBUTION, "v1", 200, 10_000, 1000, False, "200 × 10,000, run i ↦ mulberry32(seed + i)"),
         Protocol(CUSTOM, None, 100, 2000, 0, False, "runs × frames as independent worlds, world i ↦ seed + i"),
@@ -183,6 +191,21 @@ def _resolve(config: EngineConfig, protocol: str, runs: int | None, frames: int 
     return proto, runs, frames
 
 
+V2_OFFICIAL_STREAM_SEED = 1
+"""The ``Math.random`` seed of the site's evaluation worker (``v2-official``'s default), which ``v2-heldout``
+keeps: only its runs' Park–Miller seeds move."""
+
+
+def heldout_counter(seed: int, runs: int) -> int:
+    """``v2-heldout``'s run counter before its first run: ``seed``, checked so that every run's Park–Miller seed
+    ``seed + k + 1`` is a valid one (below 2³¹ − 1)."""
+    top = PM_MODULUS - 1 - runs
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= top:
+        raise ConfigError(f"seed: v2-heldout's runs use Park–Miller seeds seed + 1 … seed + runs, so seed must be "
+                          f"an integer in 0–{top:,} for {runs} runs, got {seed!r} (10⁶ is the default)")  # fmt: skip
+    return int(seed)
+
+
 def evaluate(
     config: EngineConfig,
     policy: Callable[[Observation], Any],
@@ -288,6 +311,9 @@ def _sequential_sim(
     sim = Simulator(config, 1, frames, runs)
     if protocol == V1_DISTRIBUTION:
         sim.seed_per_run([seed + i for i in range(runs)])
+    elif protocol == V2_HELDOUT:
+        start = mulberry32_advance(V2_OFFICIAL_STREAM_SEED, 0) if stream_state is None else stream_state
+        sim.seed_stream(start, run_counter=heldout_counter(seed, runs))
     else:
         sim.seed_stream(mulberry32_advance(seed, 0) if stream_state is None else stream_state)
     return sim
@@ -322,7 +348,8 @@ class SequentialEvaluation:
     and carrying on to the end gives exactly ``evaluate``'s result. So a caller can score several policies on a
     protocol's first runs and finish only the one it keeps, paying for the shared runs once (the search's ε_test
     screens finish the chosen screen as the official evaluation). Needs a policy the loop runs compiled
-    (``compiled``/``pstate``, ``run_world`` or a built-in) and a sequential protocol (v2-official, v1-original).
+    (``compiled``/``pstate``, ``run_world`` or a built-in) and a sequential protocol (v2-official, v2-heldout,
+    v1-original).
     """
 
     def __init__(

@@ -156,16 +156,21 @@ class Simulator:
             fn(*self._arrays(), i, seed + i)
         self._seeded = True
 
-    def seed_stream(self, mrand_state: int) -> None:
+    def seed_stream(self, mrand_state: int, run_counter: int = 0) -> None:
         """One world continuing a ``Math.random`` stream, as the official protocols do.
 
         v1: the state is the stream's (e.g. ``mulberry32(2000)`` for evaluate.js); v2: the stream
-        installed before a fresh engine load, evaluation mode (run k uses Park–Miller seed k + 1).
+        installed before a fresh engine load, evaluation mode (run k uses Park–Miller seed k + 1, or
+        ``run_counter + k + 1``: the same harness on other runs).
         """
         if self.n_worlds != 1:
             raise ValueError("seed_stream: the sequential protocols use exactly one world")
-        fn = seeding.seed_v1 if self.config.ruleset == "v1" else seeding.seed_v2_official
-        fn(*self._arrays(), 0, mrand_state)
+        if self.config.ruleset == "v1":
+            if run_counter:
+                raise ValueError("seed_stream: run_counter is a v2 evaluation's; v1 draws its runs from the stream")
+            seeding.seed_v1(*self._arrays(), 0, mrand_state)
+        else:
+            seeding.seed_v2_evaluation(*self._arrays(), 0, mrand_state, int(run_counter))
         self._seeded = True
 
     def seed_per_run(self, seeds: list[int] | np.ndarray) -> None:

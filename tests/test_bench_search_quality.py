@@ -522,8 +522,9 @@ def test_refinement_runs_count_as_nets_not_as_picks() -> None:
 
 def test_held_out_scores_rescore_the_stored_net_on_unplayed_runs(tmp_path: Path) -> None:
     """``held_out_scores``: a trial's stored net (its value's, or a kept rung's with that rung's ε_test) scored on the
-    ``custom`` protocol's runs from each seed, exactly as ``evaluate_official`` scores it there; a trial without a
-    stored net gives its one-line cause; ``add_held_out`` and the table carry them per checkpoint."""
+    ``v2-heldout`` protocol's runs from each seed (the official harness on other runs), exactly as
+    ``evaluate_official`` scores it there; a trial without a stored net gives its one-line cause; ``add_held_out``
+    and the table carry them per checkpoint."""
     from autotune.convnet.netjson import dumps_net, loads_net
     from autotune.learner.official import evaluate_official
     from autotune.learner.training import train
@@ -547,11 +548,13 @@ def test_held_out_scores_rescore_the_stored_net_on_unplayed_runs(tmp_path: Path)
 
     got = sq.held_out_scores(journal, name, [(0, None), (0, 100), (1, None), (0, None)], [1_000_000, 7], 4)
     net = loads_net(text)
-    want = [evaluate_official(net, config, seed=s, protocol="custom", runs=4).median_site for s in (1_000_000, 7)]
+    assert sq.held_out_protocol("v2") == "v2-heldout" and sq.held_out_protocol("v1") == "custom"
+    want = [evaluate_official(net, config, seed=s, protocol="v2-heldout", runs=4).median_site
+            for s in (1_000_000, 7)]  # fmt: skip
     assert got[(0, None)] == want
     rung = trained_rung_config(config, 100, rungs)  # as the rung scored it: its ε_test 0.45, not the config's 0
     assert rung.epsilon_test_time == 0.45
-    assert got[(0, 100)] == [evaluate_official(net, rung, seed=s, protocol="custom", runs=4).median_site
+    assert got[(0, 100)] == [evaluate_official(net, rung, seed=s, protocol="v2-heldout", runs=4).median_site
                              for s in (1_000_000, 7)]  # fmt: skip
     assert got[(0, 100)] != want
     assert "no trained network stored" in got[(1, None)]

@@ -135,3 +135,19 @@ def test_custom_protocol_batched_worlds() -> None:
     a = evaluate_net(net, settings, "custom", runs=4, frames=600, seed=7)
     b = evaluate_net(net, settings, "custom", runs=4, frames=600, seed=7)
     assert a.scores == b.scores and len(a.scores) == 4 and a.other_agents == 4
+
+
+def test_v2_heldout_is_the_official_harness_on_other_runs() -> None:
+    """``v2-heldout`` at seed 0 is the site's evaluation to the digit (the JS's recorded runs of a net whose
+    temporal window carries from run to run); at other seeds it plays other runs with that harness, where the
+    ``custom`` protocol's fresh world per run scores the same net apart."""
+    nid = "dt-anirudhrbhat-deep-learning-for-self-driving-v00"  # temporal window 1, ε_test 0.01, 4 agents
+    net, settings = _net(nid)
+    ref = _reference()[nid]["results"]["v2_official_otherAgents4"]
+    flag = _flags()[nid]["v2_official_otherAgents4"]
+    kw = {"other_agents": ref["other_agents"], "gauss_cache": flag, "runs": 6}
+    at_zero = evaluate_net(net, settings, "v2-heldout", seed=0, **kw)
+    assert at_zero.scores == ref["scores"][:6] and at_zero.seed == 0
+    other = evaluate_net(net, settings, "v2-heldout", **kw)
+    assert other.seed == 1_000_000 and other.scores != at_zero.scores
+    assert evaluate_net(net, settings, "v2-heldout", seed=1_000_000, **kw).scores == other.scores

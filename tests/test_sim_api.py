@@ -232,3 +232,27 @@ def test_a_paused_evaluation_needs_a_sequential_protocol_and_a_compiled_policy()
         paused.result()
     with pytest.raises(ConfigError, match="runs: must be ≥ 0"):
         paused.advance(-1)
+
+
+def test_v2_heldout_moves_only_the_runs_of_the_official_harness() -> None:
+    """``v2-heldout``: the official evaluation (``Math.random := mulberry32(1)``, one world, runs coupled through
+    ``reset()``) with the run counter starting at its seed, so run k uses Park–Miller seed seed + k + 1: seed 0 is
+    ``v2-official`` exactly, and a seed whose runs would pass the generator's range is refused by name."""
+    from sim.layout import I_RUN_COUNTER
+    from sim.protocols import PROTOCOLS, V2_HELDOUT
+
+    config = EngineConfig(ruleset="v2", other_agents=2, lanes_side=1, patches_ahead=10)
+    policy = BUILTINS["random"].bind(config)  # draws from the Math.random stream the two protocols share
+    official = evaluate(config, policy, "v2-official", runs=4)
+    assert evaluate(config, policy, V2_HELDOUT, seed=0, runs=4).scores == official.scores
+    held = evaluate(config, policy, V2_HELDOUT, runs=4)
+    assert held.seed == PROTOCOLS[V2_HELDOUT].seed == 1_000_000 and held.scores != official.scores
+    sim = Simulator(config, 1, 10, runs_per_world=2)
+    sim.seed_stream(1, run_counter=41)
+    assert sim.ints[0, I_RUN_COUNTER] == 42  # the first run's Park–Miller seed: counter + 1
+    with pytest.raises(ConfigError, match=r"seed: v2-heldout's runs use Park–Miller seeds .* got -1"):
+        evaluate(config, policy, V2_HELDOUT, seed=-1, runs=4)
+    with pytest.raises(ConfigError, match=r"seed must be an integer in 0–2,147,483,642 for 4 runs"):
+        evaluate(config, policy, V2_HELDOUT, seed=2**31 - 5, runs=4)
+    with pytest.raises(ValueError, match="run_counter is a v2 evaluation's"):
+        Simulator(EngineConfig(ruleset="v1"), 1, 10, runs_per_world=2).seed_stream(1, run_counter=3)

@@ -3,7 +3,7 @@
 (``python -m autotune.evaluate`` is the same command.) The scores are the original's:
 
     autotune evaluate --net NET.json [--config NET.config.json] [--ruleset v1|v2]
-        [--protocol v2-official|v1-original|v1-distribution|custom] [--seed S] [--other-agents N]
+        [--protocol v2-official|v2-heldout|v1-original|v1-distribution|custom] [--seed S] [--other-agents N]
         [--runs R --frames F] [--threads T] [--gauss-cache 0|1] [--no-engine-load] [--json]
     autotune evaluate --trial STUDY:N [--storage URL] [--retrain] [--json]
 
@@ -42,9 +42,15 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument(
         "--protocol",
         default="official",
-        help="v2-official, v1-original, v1-distribution, custom (default: the ruleset's official)",
+        help="v2-official, v2-heldout (the official harness on other runs), v1-original, v1-distribution, custom "
+        "(default: the ruleset's official)",
     )
-    p.add_argument("--seed", type=int, help="protocol seed (default: the protocol's: 1, 2000, 1000, 0)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        help="protocol seed (default: the protocol's: 1, 10⁶, 2000, 1000, 0; v2-heldout's moves its runs: run k "
+        "uses Park–Miller seed seed + k + 1)",
+    )
     p.add_argument(
         "--other-agents", type=int, help="v2: extra agents driven by the net (default: the net's otherAgents)"
     )

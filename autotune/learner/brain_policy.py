@@ -72,7 +72,9 @@ from sim.protocols import (
     PROTOCOLS,
     V1_DISTRIBUTION,
     V1_ORIGINAL,
+    V2_HELDOUT,
     V2_OFFICIAL,
+    V2_OFFICIAL_STREAM_SEED,
     EvalResult,
     ProgressFn,
     SequentialEvaluation,
@@ -82,7 +84,7 @@ from sim.rng import mulberry32_advance
 from sim.simulator import Simulator
 
 MAX_BRAINS = 11  # the ego + up to 10 agents
-SEQUENTIAL_PROTOCOLS = (V2_OFFICIAL, V1_ORIGINAL, V1_DISTRIBUTION)  # one world: the brain's own driver
+SEQUENTIAL_PROTOCOLS = (V2_OFFICIAL, V2_HELDOUT, V1_ORIGINAL, V1_DISTRIBUTION)  # one world: the brain's own driver
 V1_LOAD_DRAWS = 60  # loading the v1 engine constructs 20 cars, 3 draws each
 
 # gcfg (int64) fields
@@ -278,6 +280,7 @@ class BrainPolicy:
         one process inherits the previous evaluation's final flag (``final_gauss_cache``).
 
         * v2-official: ``mulberry32(seed)``, brain built → the state before the engine load;
+        * v2-heldout: as v2-official from ``mulberry32(1)`` (its ``seed`` moves the runs, not the stream);
         * v1-original: ``mulberry32(seed)``, brain built, v1 engine loaded (60 draws) → the state
           before ``doEvalRun``. ``engine_load=False``: no load draws, as in the harness of
           ``learner_scores.json``, whose engine existed before ``Math.random`` was seeded (its
@@ -296,7 +299,8 @@ class BrainPolicy:
             self.reset(n, caches)
             self.stream_state = None
             return None
-        built, cache, _draws = build_draws(self.net, seed, gauss_cache)
+        stream = V2_OFFICIAL_STREAM_SEED if protocol == V2_HELDOUT else seed
+        built, cache, _draws = build_draws(self.net, stream, gauss_cache)
         self.reset(1, np.array([cache], dtype=np.int64))
         state: int | None = built
         if protocol == V1_ORIGINAL and engine_load:
@@ -386,7 +390,7 @@ def evaluate_net(
 ) -> EvalResult:
     """Evaluate a net file's trained net exactly as the original harness would (per-run scores in run order).
 
-    ``protocol``: v2-official, v1-original, v1-distribution or custom (``sim.protocols``);
+    ``protocol``: v2-official, v2-heldout, v1-original, v1-distribution or custom (``sim.protocols``);
     ``ruleset`` defaults to the protocol's (custom: the net's engine); ``other_agents`` (v2)
     defaults to the net's ``otherAgents`` (0 when unset); the temporal window and ε_test are the
     file's, or deepqlearn's defaults. The rest as ``evaluate_brain``.
@@ -488,7 +492,7 @@ def brain_evaluation(
 ) -> SequentialEvaluation:
     """``evaluate_brain``'s evaluation, pausable between runs (``sim.protocols.SequentialEvaluation``; its
     ``policy`` is the ``BrainPolicy``, whose ``greedy_actions`` count the runs done so far). Sequential
-    protocols only (v2-official, v1-original); seeded exactly as ``evaluate_brain`` seeds them."""
+    protocols only (v2-official, v2-heldout, v1-original); seeded exactly as ``evaluate_brain`` seeds them."""
     policy, stream_state = _prepared(net, engine, temporal_window, epsilon, protocol, seed, runs, name,
                                      gauss_cache, engine_load)  # fmt: skip
     return SequentialEvaluation(engine, policy, protocol, seed=seed, runs=runs, stream_state=stream_state,

@@ -9,12 +9,12 @@
 * ``v1-distribution`` (engine_spec.md §13): 200 × 10,000 frames, run i seeded ``seed + i``
   (default 1000). Independent worlds for memoryless policies; one world re-seeded per run for
   policies with memory (a network's temporal window persists across runs, as in the reference).
-* ``v2-heldout``: the ``v2-official`` harness — ``Math.random := mulberry32(1)``, a fresh engine load, 500
-  sequential runs coupled through ``reset()``, the agents' brain copies and every temporal window carried from
-  run to run — on runs it never plays: run k uses Park–Miller seed ``seed + k + 1`` (default 10⁶; seed 0 is
-  ``v2-official`` exactly). What a net's official score would have been on another draw of runs: ``custom``
-  starts every run in a fresh world, and a net with a temporal window scores there up to 12 mph apart from
-  the same runs played officially.
+* ``v2-heldout``: the ``v2-official`` harness (engine_spec_v2.md §11) — ``Math.random := mulberry32(1)``, a
+  fresh engine load, 500 sequential runs coupled through ``reset()`` (§3.3), the agents' brain copies and every
+  temporal window carried from run to run (§8.3) — on runs it never plays: run k uses Park–Miller seed
+  ``seed + k + 1`` (default 10⁶; seed 0 is ``v2-official`` exactly). What a net's official score would have been
+  on another draw of runs: ``custom`` starts every run in a fresh world, and a net with a temporal window scores
+  there up to 12 mph apart from the same runs played officially.
 * ``custom``: ``runs`` × ``frames`` as independent worlds, world i seeded ``seed + i`` (v2: its run
   uses Park–Miller seed ``seed + i``), stepped as one batch.
 

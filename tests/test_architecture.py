@@ -266,7 +266,7 @@ def test_the_checker_catches_private_attributes_and_optuna(tmp_path: Path, monke
         _defined_private.cache_clear()
 
 
-PROTOCOL_NAMES = ("v2-official", "v1-original", "v1-distribution", "custom")
+PROTOCOL_NAMES = ("v2-official", "v2-heldout", "v1-original", "v1-distribution", "custom")
 PROTOCOLS_HOME = "sim/protocols.py"
 
 
@@ -285,7 +285,13 @@ def test_protocol_names_are_constants() -> None:
     from autotune.learner.official import OFFICIAL_PROTOCOL
     from sim import protocols
 
-    names = (protocols.V2_OFFICIAL, protocols.V1_ORIGINAL, protocols.V1_DISTRIBUTION, protocols.CUSTOM)
+    names = (
+        protocols.V2_OFFICIAL,
+        protocols.V2_HELDOUT,
+        protocols.V1_ORIGINAL,
+        protocols.V1_DISTRIBUTION,
+        protocols.CUSTOM,
+    )
     assert names == PROTOCOL_NAMES and tuple(protocols.PROTOCOLS) == names
     assert {r: protocols.PROTOCOLS[p].ruleset for r, p in protocols.OFFICIAL.items()} == {"v1": "v1", "v2": "v2"}
     assert OFFICIAL_PROTOCOL is protocols.OFFICIAL

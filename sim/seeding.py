@@ -7,8 +7,8 @@ performs the first ``reset()``:
 * ``seed_v2_official`` — ``Math.random := mulberry32(state)`` before a fresh engine load (20
   ``Math.random`` and 40 traffic draws), then evaluation mode (run counter 0): run k uses
   Park–Miller seed k + 1 and the first run's cars come from the load-time traffic generator.
-  ``seed_v2_evaluation(state, counter)`` is the same with the run counter starting at ``counter`` (run k uses
-  seed ``counter + k + 1``): the ``v2-heldout`` protocol, the official harness on runs it never plays.
+  ``seed_v2_evaluation(state, r0)`` is the same with the run counter starting at ``r0`` (run k uses seed
+  ``r0 + k + 1``): the ``v2-heldout`` protocol, the official harness on runs it never plays.
 * ``seed_v2_independent(seed)`` — one independent v2 world per seed, for the ``custom`` protocol:
   ``Math.random := mulberry32(seed)``, and the run uses Park–Miller seed ``seed`` with the
   pre-reset traffic generator at PM(seed) (as if a previous run had consumed none of it).
@@ -47,20 +47,13 @@ def seed_v2_official(
 
 @njit(cache=True, error_model="numpy")
 def seed_v2_evaluation(
-    cars: np.ndarray,
-    fs: np.ndarray,
-    ints: np.ndarray,
-    mr: np.ndarray,
-    cfg: np.ndarray,
-    w: int,
-    state: int,
-    counter: int,
+    cars: np.ndarray, fs: np.ndarray, ints: np.ndarray, mr: np.ndarray, cfg: np.ndarray, w: int, state: int, r0: int
 ) -> None:
-    """The evaluation worker's seeding with the run counter starting at ``counter``: run k uses Park–Miller seed
-    ``counter + k + 1`` (0: ``seed_v2_official``)."""
+    """The evaluation worker's seeding with the run counter (``r``, engine_spec_v2 §2) starting at ``r0``: run k
+    uses Park–Miller seed ``r0 + k + 1`` (0: ``seed_v2_official``)."""
     mr[w] = state & 0xFFFFFFFF
     load_v2(cars, ints, mr, w)
-    ints[w, I_RUN_COUNTER] = counter
+    ints[w, I_RUN_COUNTER] = r0
     reset(cars, fs, ints, mr, cfg, w)
 
 

@@ -247,6 +247,44 @@ def test_no_twins_without_the_key_or_in_the_race_window(tmp_path: Path) -> None:
     assert len(study.trials) == 1
 
 
+def test_crowd_twins_are_checked_and_left_out_of_the_stored_spec_when_off() -> None:
+    assert "crowd_twins" not in _spec(linear_twins=RATES).to_dict()["warm_start"]  # as stored before the key
+    on = parse_spec({**_data(linear_twins=RATES), "warm_start": {"crowd": True, "crowd_twins": True}}, source="x")
+    assert on.warm_start.crowd_twins and on.to_dict()["warm_start"]["crowd_twins"] is True
+    with pytest.raises(SpecError, match=r"\[warm_start\] crowd_twins: .*linear_twins is empty"):
+        parse_spec({**_data(), "warm_start": {"crowd_twins": True}}, source="x")
+    with pytest.raises(SpecError, match=r"\[warm_start\] crowd_twins: must be true or false"):
+        parse_spec({**_data(linear_twins=RATES), "warm_start": {"crowd_twins": 1}}, source="x")
+
+
+@pytest.mark.parametrize("on", [True, False])
+def test_a_linear_crowd_setting_gets_its_twins_at_the_ladders_top_whatever_its_own_score(
+    tmp_path: Path, on: bool
+) -> None:
+    spec = parse_spec({**_data(linear_twins=RATES), "warm_start": {"crowd": True, "crowd_twins": on}}, source="x")
+    spec = spec.with_overrides(storage=str(tmp_path / "j.log"))
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver.pool, driver._t0 = FakePool(), time.perf_counter()  # noqa: SLF001
+    dists = distributions(spec)
+    linear = {**space.encode(spec, HIDDEN), "n_layers": 0, "method": "adagrad", LR_X_INPUTS: 1e-4}
+    # the crowd's settings: a linear one at a fine-tuning rate (pruned at its screen), one with hidden layers
+    crowd = _add(study, dists, linear, None, [(400, 40.0)], **{keys.WARM_START: "crowd:lin"})
+    _add(study, dists, space.encode(spec, HIDDEN), None, [(400, 41.0)], **{keys.WARM_START: "crowd:deep"})
+    driver._enqueue_twins()  # noqa: SLF001
+    waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    if not on:
+        assert not waiting
+        return
+    assert [(t.system_attrs["fixed_params"]["method"], t.system_attrs["fixed_params"][LR_X_INPUTS])
+            for t in waiting] == [("adagrad", 3.0), ("adagrad", 10.0), ("sgd", 0.03)]  # fmt: skip
+    assert all(t.user_attrs == {keys.TWIN_OF: crowd, keys.LADDER_TOP: 1} for t in waiting)
+    driver._enqueue_twins()  # noqa: SLF001 - once per crowd setting
+    assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 3
+    assert driver._launch_next(0)  # noqa: SLF001 - trained once, at the top rung the cap affords
+    assert driver.pool.tasks[-1].rungs == (1200,) and driver.pool.tasks[-1].config["learning_rate"] > 1e-4
+
+
 # -- linear neighbours ------------------------------------------------------------------------
 
 

@@ -1598,6 +1598,29 @@ class Driver:
                 user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
             for params in twins.twins(source.params, st.linear_twins):
                 self._plan_side(params, user)
+        if self.spec.warm_start.crowd_twins:
+            for source in self._crowd_linear(trials):
+                if source.number in done:
+                    continue
+                done.add(source.number)
+                user = {keys.TWIN_OF: source.number}
+                if self.spec.ladder:  # the ladder's top; the cost cap picks the rung (``plan``)
+                    user[keys.LADDER_TOP] = len(self.spec.ladder) - 1
+                for params in twins.twins(source.params, st.linear_twins):
+                    self._plan_side(params, user)
+
+    @staticmethod
+    def _crowd_linear(trials: Sequence[FrozenTrial]) -> list[FrozenTrial]:
+        """The crowd prior's settings without hidden layers that have started (``[warm_start] crowd_twins``).
+
+        Why their twins, whatever their own score: the crowd's linear nets were trained on loaded weights.
+        jnorthrup-v05 (the best v2 human net, 75.80 in this engine: 6 lanes a side, 52 patches ahead, adagrad at
+        1e-8, 50k iterations) fine-tuned the weights of its 500k-iteration version; from a fresh start its rate
+        learns nothing. Its view as a linear adagrad net at 8 per input scored 75.22, 75.37, 75.22, 74.84 at 810k
+        (seeds 11-14; its 4 seeds souped at 75.60), at 3 per input 75.09 and 74.27: one of the strongest families
+        measured, which the crowd-prior hours, starting from gsurma's narrow view, never reached."""
+        return [t for t in trials if keys.WARM_START in t.user_attrs and t.state != TrialState.WAITING
+                and t.params.get("n_layers") == 0]  # fmt: skip
 
     def _enqueue_neighbours(self) -> None:
         """Enqueue the neighbours (``[study] linear_neighbours``, ``twins.neighbours``) of two linear configurations,

@@ -17,7 +17,7 @@ Five tables, every key optional unless said otherwise::
     [resources]   workers, cpus_per_trial, gpus_per_trial
     [ladder]      rungs = [10000, 30000, …]: training length as a budget ladder (``autotune.search.ladder``),
                   min_top, prune_static, min_weight_change, reseed, epsilon_test_grid, epsilon_test_screen_runs
-    [warm_start]  crowd = true: enqueue the shipped crowd settings of the study's engine first
+    [warm_start]  crowd = true: enqueue the shipped crowd settings of the study's engine first; study, crowd_twins
 
 Every problem raises ``SpecError`` with ONE line naming the file, the table, the key and the fix
 (``study_configs/x.toml: [space] learning_rate: low 0.1 > high 0.01; swap them``), so the CLI can print
@@ -417,6 +417,11 @@ class WarmStartSection:
     into the space; every one is trained and measured, no claimed score becomes a value)."""
     study: str = ""
     """Copy this earlier study's measured trials (same storage) into the sampler's history, no retraining."""
+    crowd_twins: bool = False
+    """With crowd and [study] linear_twins: each crowd setting without hidden layers also gets its linear twins (its
+    settings at each listed method and rate per input), trained at the ladder's top rung the cost cap affords: such
+    a net was trained on loaded weights (a fine-tuning rate, its last session's trainIterations), so its own setting
+    does not learn from a fresh start; false: none."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -560,6 +565,9 @@ class StudySpec:
                 del study[key]
         if study["side_share"] == 1.0:  # likewise (its default: no cap)
             del study["side_share"]
+        warm = dataclasses.asdict(self.warm_start)
+        if not warm["crowd_twins"]:  # likewise
+            del warm["crowd_twins"]
         return {
             "study": study,
             "fixed": dict(self.fixed),
@@ -567,7 +575,7 @@ class StudySpec:
             "evaluation": dataclasses.asdict(self.evaluation),
             "resources": dataclasses.asdict(self.resources),
             **({"ladder": ladder} if self.ladder else {}),
-            "warm_start": dataclasses.asdict(self.warm_start),
+            "warm_start": warm,
         }
 
     def with_overrides(
@@ -651,6 +659,11 @@ def parse_spec(data: Mapping[str, Any], *, source: str = "spec", default_name: s
         data.get("ladder"), source, study.ruleset
     )
     warm = _parse_warm_start(data.get("warm_start", {}), source)
+    if warm.crowd_twins and not study.linear_twins:
+        raise SpecError(
+            f"{source}: [warm_start] crowd_twins: twins the crowd's linear settings, but [study] "
+            "linear_twins is empty; set linear_twins (e.g. { adagrad = [3.0] }), or remove crowd_twins"
+        )
     fixed = _parse_fixed(data.get("fixed", {}), source, study.ruleset, {d.name for d in space})
     spec = StudySpec(
         study, fixed, space, evaluation, resources, ladder, min_top, prune_static, min_change, reseed, grid,
@@ -1003,7 +1016,11 @@ def _parse_warm_start(table: Mapping[str, Any], src: str) -> WarmStartSection:
     study = table.get("study", "")
     if study:
         study = _check_name(study, f"{src}: [warm_start] study")
-    return WarmStartSection(crowd, study)
+    crowd_twins = table.get("crowd_twins", False)
+    if not isinstance(crowd_twins, bool):
+        raise SpecError(f"{src}: [warm_start] crowd_twins: must be true or false, got {crowd_twins!r}; write "
+                        "crowd_twins = true")  # fmt: skip
+    return WarmStartSection(crowd, study, crowd_twins)
 
 
 def _parse_evaluation(table: Mapping[str, Any], src: str, ruleset: str, *, ladder: bool) -> EvaluationSection:

@@ -21,7 +21,7 @@ import pytest
 from autotune import TrainConfig, dumps_net, evaluate_official
 from autotune.learner import train
 from autotune.search import keys, racing, space
-from autotune.search.cost import FEATURES, CostModel, Observation, features, plan
+from autotune.search.cost import FEATURES, CostModel, Observation, features, plan, plan_one
 from autotune.search.driver import Driver, WarmConfig, clip_params, make_pruner, make_sampler
 from autotune.search.gate import MAX_DRAWS, CostGatedSampler, distributions
 from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config, rung_seed
@@ -515,6 +515,20 @@ def test_plan_lowers_the_top_rung_to_the_cap() -> None:
     assert capped is not None and capped.budgets == (10_000, 30_000)
     assert plan(configs, model, cap_s=costs[0] / 2) is None
     assert plan(configs, model, cap_s=math.inf, top=1).budgets == (10_000, 30_000)  # type: ignore[union-attr]
+
+
+def test_a_single_rung_is_priced_alone() -> None:
+    """A twin trains one rung: the highest ≤ top whose own cost fits the cap, however much the rungs below add."""
+    model = CostModel.prior()
+    configs = [rung_config(TINY.replace(train_iterations=270_000), b) for b in (10_000, 30_000, 90_000, 270_000)]
+    costs = [model.predict(c) for c in configs]
+    assert sum(costs) > costs[3] + 1e-6
+    one = plan_one(configs, model, cap_s=costs[3] + 1e-9)  # the ladder would stop below it
+    assert one is not None and one.budgets == (270_000,) and one.costs == (costs[3],)
+    assert plan(configs, model, cap_s=costs[3] + 1e-9).budgets[-1] < 270_000  # type: ignore[union-attr]
+    assert plan_one(configs, model, cap_s=costs[3] - 1e-6).budgets == (90_000,)  # type: ignore[union-attr]
+    assert plan_one(configs, model, cap_s=math.inf, top=1).budgets == (30_000,)  # type: ignore[union-attr]
+    assert plan_one(configs, model, cap_s=costs[0] / 2) is None
 
 
 # -- warm start, resume ---------------------------------------------------------------------

@@ -231,3 +231,16 @@ def plan(configs: Sequence[TrainConfig], model: CostModel, cap_s: float, top: in
     if not costs:
         return None
     return Plan(tuple(int(c.train_iterations) for c in configs[: len(costs)]), tuple(costs))
+
+
+def plan_one(configs: Sequence[TrainConfig], model: CostModel, cap_s: float, top: int | None = None) -> Plan | None:
+    """The one rung a trial trains without its screens (a linear twin or neighbour): the highest rung ≤ ``top``
+    whose own predicted cost fits ``cap_s``; None: not even rung 0 does. Priced alone, not as a ladder: such a trial
+    never trains the rungs below (``plan`` would cap a crowd setting's twin on the whole road at 270k, where the
+    view scored 69–74, for the 108 s its 810k training is predicted to take)."""
+    last = len(configs) - 1 if top is None else min(top, len(configs) - 1)
+    for config in reversed(configs[: last + 1]):
+        c = model.predict(config)
+        if c <= cap_s:
+            return Plan((int(config.train_iterations),), (c,))
+    return None

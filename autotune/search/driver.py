@@ -73,7 +73,16 @@ from autotune.convnet.netjson import dumps_net, loads_net
 from autotune.learner.config import parse_layers
 from autotune.search import ensemble, keys, prior, racing, refine, soup, space, twins
 from autotune.search.balance import ApartPruner, BalancedSampler, conditional_startup
-from autotune.search.cost import CostModel, Observation, Plan, default_memory_cap, features, plan, rung_memory_bytes
+from autotune.search.cost import (
+    CostModel,
+    Observation,
+    Plan,
+    default_memory_cap,
+    features,
+    plan,
+    plan_one,
+    rung_memory_bytes,
+)
 from autotune.search.denoise import DenoisedSampler
 from autotune.search.gate import CostGatedSampler, distributions
 from autotune.search.ladder import Ladder, trained_rung_config
@@ -1428,7 +1437,10 @@ class Driver:
                 # the top: the highest rung that fits the cap and the time left (a rung the deadline would stop
                 # is never started); at least the rungs the gate priced when the deadline is far
                 cap = self._draw_cap()
-                predicted = plan(configs, self._model(), cap, top)
+                if twin and self.spec.ladder:  # one training at its parent's budget: no screening rung prunes it
+                    predicted = plan_one(configs, self._model(), cap, top)
+                else:
+                    predicted = plan(configs, self._model(), cap, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
                     if cap >= self.spec.study.cost_cap_s:
@@ -1439,9 +1451,7 @@ class Driver:
                     raise _Refused(f"deadline: the study's time budget ended (before training: its cheapest rung "
                                    f"is predicted to take {cheapest:,.0f} s, {max(cap, 0.0):,.0f} s were left)",
                                    TrialState.PRUNED)  # fmt: skip
-                config = configs[len(predicted.budgets) - 1]
-                if twin and self.spec.ladder:  # one training at its parent's budget: no screening rung prunes it
-                    predicted = Plan(predicted.budgets[-1:], predicted.costs[-1:])
+                config = next(c for c in configs if c.train_iterations == predicted.budgets[-1])
                 rungs = predicted.budgets if self.spec.ladder else ()
         except Exception as exc:  # a combination deepqlearn rejects: a failed trial, not a crashed study
             cause = str(exc) if isinstance(exc, _Refused) else f"invalid configuration: {exc}"

@@ -14,6 +14,7 @@ import pytest
 
 from autotune import TrainConfig
 from autotune.search import keys, space, twins
+from autotune.search.cost import CostModel
 from autotune.search.driver import Driver
 from autotune.search.gate import distributions
 from autotune.search.objective import TrialOutcome
@@ -261,13 +262,17 @@ def test_crowd_twins_are_checked_and_left_out_of_the_stored_spec_when_off() -> N
 def test_a_linear_crowd_setting_gets_its_twins_at_the_ladders_top_whatever_its_own_score(
     tmp_path: Path, on: bool
 ) -> None:
-    spec = parse_spec({**_data(linear_twins=RATES), "warm_start": {"crowd": True, "crowd_twins": on}}, source="x")
-    spec = spec.with_overrides(storage=str(tmp_path / "j.log"))
+    linear = {**space.encode(_spec(), HIDDEN), "n_layers": 0, "method": "adagrad", LR_X_INPUTS: 3.0}
+    model = CostModel.prior()
+    low, top = (model.predict(space.to_config(_spec(), linear, b)) for b in (400, 1200))
+    data = {**_data(linear_twins=RATES, max_trial_cost_s=top + (low / 2)),  # the top alone fits, the ladder not
+            "warm_start": {"crowd": True, "crowd_twins": on}}  # fmt: skip
+    spec = parse_spec(data, source="x").with_overrides(storage=str(tmp_path / "j.log"))
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
-    driver.pool, driver._t0 = FakePool(), time.perf_counter()  # noqa: SLF001
+    driver.pool, driver._t0, driver.cost_model = FakePool(), time.perf_counter(), model  # noqa: SLF001
     dists = distributions(spec)
-    linear = {**space.encode(spec, HIDDEN), "n_layers": 0, "method": "adagrad", LR_X_INPUTS: 1e-4}
+    linear = {**linear, LR_X_INPUTS: 1e-4}
     # the crowd's settings: a linear one at a fine-tuning rate (pruned at its screen), one with hidden layers
     crowd = _add(study, dists, linear, None, [(400, 40.0)], **{keys.WARM_START: "crowd:lin"})
     _add(study, dists, space.encode(spec, HIDDEN), None, [(400, 41.0)], **{keys.WARM_START: "crowd:deep"})
@@ -281,7 +286,7 @@ def test_a_linear_crowd_setting_gets_its_twins_at_the_ladders_top_whatever_its_o
     assert all(t.user_attrs == {keys.TWIN_OF: crowd, keys.LADDER_TOP: 1} for t in waiting)
     driver._enqueue_twins()  # noqa: SLF001 - once per crowd setting
     assert len(study.get_trials(states=(optuna.trial.TrialState.WAITING,))) == 3
-    assert driver._launch_next(0)  # noqa: SLF001 - trained once, at the top rung the cap affords
+    assert driver._launch_next(0)  # noqa: SLF001 - trained once, at the top rung the cap affords, priced alone
     assert driver.pool.tasks[-1].rungs == (1200,) and driver.pool.tasks[-1].config["learning_rate"] > 1e-4
 
 

@@ -1586,7 +1586,9 @@ class Driver:
         ``linear_twin_span`` of it, once per parent (``twins.parents``; a resumed study sees the twins it stored),
         before the sampler's next draw. A twin trains once, at the budget of its parent's best net
         (``keys.LADDER_TOP``), unpruned: on the ladder its 10k screen (sd ~10 mph) pruned the twins of gsurma's
-        setting at 62–72, where the same twin at 90k scored 73.7–74.4."""
+        setting at 62–72, where the same twin at 90k scored 73.7–74.4. With ``[warm_start] crowd_twins`` each crowd
+        setting without hidden layers is a parent too, once started, whatever it scored, its twins at the ladder's
+        top (``_crowd_linear``)."""
         assert self.study is not None
         st = self.spec.study
         if not st.linear_twins or self._out_of_time() or self._race_window():
@@ -1597,27 +1599,23 @@ class Driver:
         own = self._prior_free(trials)
         if own is not None:  # and the prior-free sampler's best (``[study] prior_free_share``)
             sources += twins.parents(own, self._twin_score, 0.0)
+        tops: list[tuple[FrozenTrial, int | None]] = []
         for source in sources:
+            entry = race_entry(source, self.spec.race_min_budget)
+            budget = None if entry is None else entry[1] if entry[1] is not None else entry[2].get("train_iterations")
+            tops.append((source, budget))  # its twins train as long as its best net did
+        if self.spec.warm_start.crowd_twins:  # at the ladder's top: the cost cap picks the rung (``plan_one``)
+            top = self.spec.ladder[-1] if self.spec.ladder else None
+            tops += [(source, top) for source in self._crowd_linear(trials)]
+        for source, budget in tops:
             if source.number in done:
                 continue
             done.add(source.number)
             user: dict[str, Any] = {keys.TWIN_OF: source.number}
-            entry = race_entry(source, self.spec.race_min_budget)
-            budget = None if entry is None else entry[1] if entry[1] is not None else entry[2].get("train_iterations")
-            if self.spec.ladder and budget in self.spec.ladder:  # its twins train as long as its best net did
+            if self.spec.ladder and budget in self.spec.ladder:
                 user[keys.LADDER_TOP] = self.spec.ladder.index(budget)
             for params in twins.twins(source.params, st.linear_twins):
                 self._plan_side(params, user)
-        if self.spec.warm_start.crowd_twins:
-            for source in self._crowd_linear(trials):
-                if source.number in done:
-                    continue
-                done.add(source.number)
-                user = {keys.TWIN_OF: source.number}
-                if self.spec.ladder:  # the ladder's top; the cost cap picks the rung (``plan``)
-                    user[keys.LADDER_TOP] = len(self.spec.ladder) - 1
-                for params in twins.twins(source.params, st.linear_twins):
-                    self._plan_side(params, user)
 
     @staticmethod
     def _crowd_linear(trials: Sequence[FrozenTrial]) -> list[FrozenTrial]:

@@ -16,6 +16,7 @@ from autotune import TrainConfig
 from autotune.search import keys, space, twins
 from autotune.search.cost import CostModel
 from autotune.search.driver import Driver
+from autotune.search.driver import next_side_entry as driver_next
 from autotune.search.gate import distributions
 from autotune.search.objective import TrialOutcome
 from autotune.search.spec import LR_X_INPUTS, Dimension, SpecError, StudySpec, parse_spec
@@ -339,13 +340,15 @@ def test_the_driver_enqueues_the_neighbours_of_the_linear_configuration_whose_so
     tmp_path: Path,
 ) -> None:
     driver, study, dists, linear = _neighbours_driver(tmp_path)
+    hidden = space.encode(driver.spec, HIDDEN)
     owner = _add(study, dists, linear, 73.0, [(1200, 73.0)])
+    _add(study, dists, hidden, 73.6, [(1200, 73.6)])
     seed = _add(study, dists, linear, 73.5, [(1200, 73.5)], **{keys.RACE_OF: owner, keys.RACE_SEED: 0})
     soup_attrs = {keys.SEED_SOUP_OF: owner, keys.SOUP_OF: [owner, seed],
                   keys.REFINE_OF: {"trial": seed, "budget": None, "score": 73.5}}  # fmt: skip
     _add(study, dists, linear, 73.2, [], **soup_attrs)
-    driver._enqueue_neighbours()  # noqa: SLF001 - the best net is a single training, not the soup: none
-    assert len(study.trials) == 3
+    driver._enqueue_neighbours()  # noqa: SLF001 - the best net has hidden layers: none
+    assert len(study.trials) == 4
     _add(study, dists, linear, 74.0, [], **soup_attrs)
     driver._enqueue_neighbours()  # noqa: SLF001
     waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
@@ -385,10 +388,11 @@ def test_the_linear_configuration_with_the_best_seed_mean_gets_neighbours_so_a_b
         return [t.system_attrs["fixed_params"] for t in study.get_trials(states=(optuna.trial.TrialState.WAITING,))
                 if t.user_attrs.get(keys.NEIGHBOUR_OF) == owner]  # fmt: skip
 
+    _add(study, dists, {**hidden, "lanes_side": 2}, 74.8, [(1200, 74.8)])  # the best net: hidden layers
     parent = _add(study, dists, linear, 74.0, [(1200, 74.0)])
     seeds(parent, linear, 73.0, 73.4)
-    driver._enqueue_neighbours()  # noqa: SLF001 - two seeds are no standing, and no soup is the best net: none
-    assert len(study.trials) == 3
+    driver._enqueue_neighbours()  # noqa: SLF001 - two seeds are no standing, and the best net is not linear: none
+    assert len(study.trials) == 4
     seeds(parent, linear, 73.0, 73.4, 73.8)  # its third seed (the first two again: a retry's result replaces)
     better_hidden = _add(study, dists, hidden, 74.5, [(1200, 74.5)])
     seeds(better_hidden, hidden, 74.5, 74.6, 74.7)  # leads the standing, but has hidden layers: passed over
@@ -410,6 +414,37 @@ def test_the_linear_configuration_with_the_best_seed_mean_gets_neighbours_so_a_b
     assert waiting_of(neighbour) == [p for p in twins.neighbours(moved, driver.spec.space)
                                      if p not in [t.params for t in study.trials]]  # fmt: skip
     assert waiting_of(neighbour)
+
+
+def test_the_linear_configuration_of_the_best_single_net_gets_neighbours_at_that_nets_budget(tmp_path: Path) -> None:
+    """Not only a soup's: a crowd-prior hour's crowd twin was the best net from minute 6, its soups the best only from
+    minute 18, and its neighbours, planned then, never trained before the race."""
+    driver, study, dists, linear = _neighbours_driver(tmp_path)
+    hidden = space.encode(driver.spec, HIDDEN)
+
+    def parents() -> list[tuple[int, Any]]:
+        return [(owner, budget) for owner, _, budget in driver._neighbour_parents(study.trials)]  # noqa: SLF001
+
+    assert parents() == []
+    _add(study, dists, hidden, 73.0, [(1200, 73.0)])
+    assert parents() == []  # the best net has hidden layers
+    kept = {keys.ARTIFACT_RUNG_NETS: {"400": "a", "1200": "b"}, keys.OFFICIAL_PROTOCOL: "v2-official"}
+    ladder = _add(study, dists, linear, 72.0, [(400, 74.0), (1200, 72.0)], **kept)
+    assert parents() == [(ladder, 400)]  # a sampled ladder trial's lower rung: that rung's budget
+    twin = _add(study, dists, {**linear, LR_X_INPUTS: 3.0}, 74.5, [(1200, 74.5)], **{keys.TWIN_OF: 0})
+    assert parents() == [(twin, 1200)]  # a twin's own net
+    seed = _add(study, dists, linear, 75.0, [(1200, 75.0)], **{keys.RACE_OF: ladder, keys.RACE_SEED: 0})
+    assert parents() == [(ladder, 1200)]  # a fresh seed run: its configuration's, at the run's budget
+    _add(study, dists, linear, 75.5, [], **{keys.REFINE_OF: {"trial": seed, "budget": None, "score": 75.0}})
+    assert parents() == []  # a refined net measures no configuration
+    soup = {keys.SEED_SOUP_OF: ladder, keys.SOUP_OF: [ladder, seed],
+            keys.REFINE_OF: {"trial": seed, "budget": None, "score": 75.0}}  # fmt: skip
+    _add(study, dists, linear, 75.6, [], **soup)
+    assert parents() == [(ladder, 1200)]  # a seed soup: its configuration's
+    driver._enqueue_neighbours()  # noqa: SLF001
+    waiting = _waiting(study)
+    assert [t.system_attrs["fixed_params"] for t in waiting] == twins.neighbours(linear, driver.spec.space)
+    assert all(t.user_attrs == {keys.NEIGHBOUR_OF: ladder, keys.LADDER_TOP: 1} for t in waiting)
 
 
 # -- their share of the time ([study] side_share) ---------------------------------------------
@@ -522,6 +557,48 @@ def test_with_a_side_share_neighbours_are_planned_too_once_per_parent(tmp_path: 
     assert all(e["user_attrs"] == {keys.NEIGHBOUR_OF: owner, keys.LADDER_TOP: 1} for e in plan)
     driver._release_side()  # noqa: SLF001
     assert [t.system_attrs["fixed_params"] for t in _waiting(study)] == [plan[0]["params"]]
+
+
+def test_the_side_plan_releases_the_newest_parents_entries_first_each_parents_in_order() -> None:
+    def entry(key: str, parent: int, released: bool = False) -> dict[str, Any]:
+        return {"params": {}, "user_attrs": {key: parent, keys.LADDER_TOP: 1}, "released": released}
+
+    twin, neighbour = keys.TWIN_OF, keys.NEIGHBOUR_OF
+    assert driver_next([]) is None
+    plan = [entry(twin, 0), entry(twin, 0), entry(twin, 1), entry(neighbour, 1), entry(neighbour, 1)]
+    assert driver_next(plan) == 3  # the newest parent is (neighbour_of, 1): a twin's parent is another
+    plan[3]["released"] = True
+    assert driver_next(plan) == 4
+    plan[4]["released"] = True
+    assert driver_next(plan) == 2  # then the twins of trial 1, then those of trial 0, oldest first
+    plan[2]["released"] = True
+    assert driver_next(plan) == 0
+    plan.append(entry(twin, 5))  # a new parent goes first
+    assert driver_next(plan) == 5
+    assert driver_next([entry(twin, 0, released=True)]) is None
+
+
+def test_with_a_side_share_a_new_bests_neighbours_start_before_older_twins(tmp_path: Path) -> None:
+    """A crowd-prior hour (seed 2) trained its crowd twins and gsurma's from minute 12 to 25 while the neighbours of
+    the best net waited; their second scored 75.85 at minute 33."""
+    driver, study, dists = _driver(tmp_path, seed_soups=[2], linear_neighbours=True, side_share=0.5)
+    hidden = space.encode(driver.spec, HIDDEN)
+    first = _add(study, dists, hidden, 73.0, [(1200, 73.0)], **{keys.TRIAL_WALL_SECONDS: 10.0})
+    driver._enqueue_twins()  # noqa: SLF001
+    driver._release_side()  # noqa: SLF001 - the first twin
+    assert driver._launch_next(0)  # noqa: SLF001
+    twin = driver._running.pop(0).trial  # noqa: SLF001
+    task = driver.pool.tasks[-1]
+    driver._finish(twin, TrialOutcome(twin.number, "complete", 74.0, None, {  # noqa: SLF001
+        keys.CONFIG: task.config, keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: 74.0}],
+        keys.TRIAL_WALL_SECONDS: 10.0}))  # fmt: skip
+    plan = study.user_attrs[keys.SIDE_PLAN]  # the best net is the twin's: its neighbours are planned after the twins
+    assert [e["user_attrs"].get(keys.TWIN_OF, e["user_attrs"].get(keys.NEIGHBOUR_OF)) for e in plan] == [
+        first, first, first, *[twin.number] * len(twins.neighbours(twin.params, driver.spec.space))]  # fmt: skip
+    driver._release_side()  # noqa: SLF001 - 10 s of 20: the twin's first neighbour, not the second twin
+    assert [t.user_attrs for t in _waiting(study)] == [{keys.NEIGHBOUR_OF: twin.number, keys.LADDER_TOP: 1}]
+    assert [t.system_attrs["fixed_params"] for t in _waiting(study)] == [
+        twins.neighbours(twin.params, driver.spec.space)[0]]  # fmt: skip
 
 
 def test_a_worker_whose_trial_finished_starts_the_planned_twin_next(tmp_path: Path) -> None:

@@ -37,8 +37,9 @@ net (``autotune.search.refine``), each run an ordinary trial with ``refine_of``;
 of linear configurations near the best for their seed soups (``autotune.search.ensemble``), every other one the
 leader's by mean over its fresh seeds with ``seed_soup_leader``. Linear twins: each new best configuration's
 ``linear_twins`` are enqueued (``autotune.search.twins``), each one unpruned training at its parent's budget,
-``twin_of`` its parent; likewise the ``linear_neighbours`` of the linear configuration whose seed soup is the best
-net, and of the linear leader by mean, ``neighbour_of`` it.
+``twin_of`` its parent; likewise the ``linear_neighbours`` of the linear configuration of the best net (its own or
+its seed soup), and of the linear leader by mean, ``neighbour_of`` it; with ``side_share`` they wait in a plan,
+released newest parent first.
 
 Enqueued full configs (``autotune crowd replay``): a trial enqueued with a ``config`` user attr
 (``TrainConfig.to_mapping()``) trains exactly that config — settings the [space] cannot express
@@ -1633,8 +1634,8 @@ class Driver:
     def _enqueue_neighbours(self) -> None:
         """Enqueue the neighbours (``[study] linear_neighbours``, ``twins.neighbours``) of two linear configurations,
         each once (a resumed study sees the neighbours it stored), each neighbour trained like a linear twin: once,
-        at its parent's budget, unpruned. The first is the configuration whose seed soup is the study's best net
-        (its soups' ``seed_soup_of``), moved from the soup's best ingredient's parameters; the second the linear
+        at its parent's budget, unpruned. The first is the configuration of the study's best net when linear
+        (``_best_linear_configuration``: its own training, or its seed soup's best ingredient's); the second the linear
         configuration with the best mean over its fresh seed runs (``racing.provisional_standings``), so that a
         neighbour whose seeds beat its parent's carries the climb on. Measured in a crowd-prior hour (seed 1): the
         family soups of one configuration's neighbours went 75.40 → 75.62, and its neighbour with a lane a side
@@ -1672,9 +1673,10 @@ class Driver:
         return {e["user_attrs"].get(key) for e in self.study.user_attrs.get(keys.SIDE_PLAN) or []}
 
     def _release_side(self) -> None:
-        """Enqueue the side plan's oldest entry not yet released, while nothing else waits and the twins and
-        neighbours have taken at most ``[study] side_share`` of the workers' time so far (their finished trials' wall
-        seconds and the running ones' so far, against every trial's); before the race only.
+        """Enqueue the side plan's next entry (``next_side_entry``: the newest parent's first), while nothing else
+        waits and the twins and neighbours have taken at most ``[study] side_share`` of the workers' time so far
+        (their finished trials' wall seconds and the running ones' so far, against every trial's); before the race
+        only.
 
         Why: each is one unpruned training at its parent's budget, and each new best or leader enqueues 3–10 of
         them. A cold hour (study seed 1) whose early best was a linear net at 810k (73.18; its seeds 67.7 and 73.7)
@@ -1705,11 +1707,11 @@ class Driver:
             side += now - run.started if _side(run.trial.user_attrs) else 0.0
         if side > share * total:
             return
-        for i, entry in enumerate(plan):
-            if not entry.get("released"):
-                self.study.enqueue_trial(entry["params"], user_attrs=entry["user_attrs"], skip_if_exists=True)
-                self.study.set_user_attr(keys.SIDE_PLAN, [*plan[:i], {**entry, "released": True}, *plan[i + 1 :]])
-                return
+        i = next_side_entry(plan)
+        if i is not None:
+            entry = plan[i]
+            self.study.enqueue_trial(entry["params"], user_attrs=entry["user_attrs"], skip_if_exists=True)
+            self.study.set_user_attr(keys.SIDE_PLAN, [*plan[:i], {**entry, "released": True}, *plan[i + 1 :]])
 
     def _prior_free(self, trials: Sequence[FrozenTrial]) -> list[FrozenTrial] | None:
         """With ``[study] prior_free_share``: the prior-free sampler's draws and the trials made from them
@@ -1717,19 +1719,15 @@ class Driver:
         return prior.prior_free(trials) if self.spec.study.prior_free_share > 0.0 else None
 
     def _neighbour_parents(self, trials: Sequence[FrozenTrial]) -> list[tuple[int, dict[str, Any], Any]]:
-        """(configuration, parameters to move, budget) of ``_enqueue_neighbours``'s parents: the best seed soup's
-        configuration (from its best ingredient), that of the prior-free sampler's draws and what was made from
-        them (``[study] prior_free_share``), then the linear leader by mean over its fresh seeds."""
+        """(configuration, parameters to move, budget) of ``_enqueue_neighbours``'s parents: the linear configuration
+        of the best net (``_best_linear_configuration``), that of the prior-free sampler's draws and what was made
+        from them (``[study] prior_free_share``), then the linear leader by mean over its fresh seeds."""
         parents: list[tuple[int, dict[str, Any], Any]] = []
         own = self._prior_free(trials)
         for pool in (trials,) if own is None else (trials, own):
-            best = _best_score(pool)
-            soups = [t for t in pool if keys.SEED_SOUP_OF in t.user_attrs and t.state == TrialState.COMPLETE
-                     and t.value is not None and float(t.value) == best]  # fmt: skip
-            if soups and ensemble.is_linear(soups[0].user_attrs.get(keys.CONFIG)):
-                lead = soups[0]
-                parents.append((int(lead.user_attrs[keys.SEED_SOUP_OF]), dict(lead.params),
-                                lead.user_attrs[keys.CONFIG].get("train_iterations")))  # fmt: skip
+            found = _best_linear_configuration(pool)
+            if found is not None:
+                parents.append(found)
         seed_configs: dict[int, Mapping[str, Any]] = {}  # a configuration's seed runs' config (their budget)
         for t in trials:
             if keys.RACE_OF in t.user_attrs and t.state == TrialState.COMPLETE and keys.CONFIG in t.user_attrs:
@@ -1889,6 +1887,62 @@ def _best_score(trials: Sequence[FrozenTrial], fresh: bool = False) -> float | N
     """The study's best single net's score (``_best_net``); None before any."""
     best = _best_net(trials, fresh)
     return None if best is None else best[0]
+
+
+def _best_linear_configuration(trials: Sequence[FrozenTrial]) -> tuple[int, dict[str, Any], Any] | None:
+    """(configuration, parameters, budget) of the best net's configuration when it has no hidden layers: a seed
+    soup's (``seed_soup_of``, moved from its best ingredient's parameters), a fresh seed run's (``race_of``), or the
+    trial's own when the best net is its first training (a sampled trial's rung, a twin, a neighbour); None before
+    any, with hidden layers, or when the best net was refined or copied (no first measure of a configuration).
+
+    Why a single net too, not only a soup: a crowd-prior hour's best net was the crowd twin of jnorthrup-v05 (75.39)
+    from minute 6, but its soups became the best net only at minute 18 (seed 3) and later, so its neighbours were
+    planned too late to train before the race (seed 3) or until minute 29 (seed 2), where the one with 1 - γ
+    doubled scored 75.85 at minute 33 (its 9 seeds at 810k: median 75.72)."""
+    best = _best_net(trials)
+    if best is None:
+        return None
+    t = next(t for t in trials if t.number == best[1])
+    attrs = t.user_attrs
+    config = attrs.get(keys.CONFIG)
+    if not ensemble.is_linear(config) or keys.COPIED_FROM in attrs:
+        return None
+    assert isinstance(config, Mapping)
+    if keys.SEED_SOUP_OF in attrs:
+        return int(attrs[keys.SEED_SOUP_OF]), dict(t.params), config.get("train_iterations")
+    if keys.SOUP_OF in attrs or keys.REFINE_OF in attrs:
+        return None
+    budget = next(b for s, b in scored_nets(attrs, t.value, t.state == TrialState.COMPLETE) if s == best[0])
+    return (int(attrs.get(keys.RACE_OF, t.number)), dict(t.params),
+            config.get("train_iterations") if budget is None else budget)  # fmt: skip
+
+
+def next_side_entry(plan: Sequence[Mapping[str, Any]]) -> int | None:
+    """The index of the side plan's (``keys.SIDE_PLAN``) next entry to release: the first entry not yet released of
+    the newest parent (its ``twin_of`` or ``neighbour_of``, in the order parents were first planned) that has one;
+    None when all are released.
+
+    Why newest first: a parent's entries are planned when it becomes the best (or the linear leader), so the newest
+    is the study's current best and an older parent's were planned for a best since overtaken. Oldest first, a
+    crowd-prior hour (seed 2) trained the crowd setting's sgd and adadelta twins (73.15-74.64, 4 minutes each) and
+    gsurma's twins from minute 12 to 25 while the neighbours of its best net (75.39 since minute 6) waited; their
+    second scored 75.85 at minute 33."""
+    order: list[tuple[str, Any]] = []
+    for entry in plan:
+        parent = _side_parent(entry["user_attrs"])
+        if parent not in order:
+            order.append(parent)
+    for parent in reversed(order):
+        for i, entry in enumerate(plan):
+            if not entry.get("released") and _side_parent(entry["user_attrs"]) == parent:
+                return i
+    return None
+
+
+def _side_parent(attrs: Mapping[str, Any]) -> tuple[str, Any]:
+    """A side plan entry's parent: (``twin_of`` or ``neighbour_of``, its trial number)."""
+    key = keys.TWIN_OF if keys.TWIN_OF in attrs else keys.NEIGHBOUR_OF
+    return key, attrs.get(key)
 
 
 def _side(attrs: Mapping[str, Any]) -> bool:

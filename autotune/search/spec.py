@@ -310,9 +310,9 @@ class StudySection:
     added to its best set scores higher, goes on by swaps — one member replaced, left out, or a lower net added
     (``ensemble.greedy_step``); 0: additions only."""
     linear_neighbours: bool = False
-    """With seed_soups: whenever a linear configuration's seed soup is the study's best net, or it leads by mean over
-    its fresh seeds (3 or more), its neighbours — its parameters with one of γ, the view or the rate moved a step
-    (``twins.NEIGHBOUR_STEPS``) — are enqueued once, each trained like a linear twin; false: none."""
+    """With seed_soups: whenever a linear configuration's net (its own or its seed soup) is the study's best, or it
+    leads by mean over its fresh seeds (3 or more), its neighbours — its parameters with one of γ, the view or the
+    rate moved a step (``twins.NEIGHBOUR_STEPS``) — are enqueued once, each trained like a linear twin; false: none."""
     seed_soup_leader: bool = False
     """With seed_soup_runs: the configuration that leads by mean over its fresh seeds (3 or more) takes every other
     run of the refinement's worker, and any run it would leave idle, up to its seed_soup_runs (12 with hidden
@@ -340,8 +340,8 @@ class StudySection:
     among the rest; (): all together."""
     side_share: float = 1.0
     """With linear_twins or linear_neighbours: the most of the workers' time so far that twins and neighbours may
-    have taken when the next one starts; the rest wait, in the order they came, while the search draws
-    (``Driver._release_side``); 1: each starts as soon as it is enqueued, before the sampler's next draw."""
+    have taken when the next one starts; the rest wait, the newest parent's first (``driver.next_side_entry``),
+    while the search draws; 1: each starts as soon as it is enqueued, before the sampler's next draw."""
 
     @property
     def cost_cap_s(self) -> float:

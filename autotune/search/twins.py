@@ -19,11 +19,11 @@ Linear neighbours (``[study] linear_neighbours``). A linear configuration's soup
 how far depends on the configuration: in crowd-prior hours the soups of gsurma's view (2 lanes a side, 15 patches
 ahead, 7 behind, γ 0.9) stopped at 75.35 and 75.57 over 43 and 64 seeds, those of a search trial's linear twin (5
 lanes a side, 15 ahead, 9 behind, γ 0.72) reached 75.72 in the hour and 75.80 offline. So once a linear
-configuration's seed soup is the study's best net, or it is the linear configuration with the best mean over its
-fresh seeds, its neighbours — its parameters with one of γ (as 1 − γ), the view or the rate moved one step
-(``NEIGHBOUR_STEPS``) — are enqueued once, trained like twins; each being linear, it gets probe seeds and soups,
-and one whose soups become the best net, or whose seeds' mean leads, gets its neighbours in turn: a climb on the
-mean over seeds, the measure the seed race and ``autotune best`` rank configurations by.
+configuration's net (its own training, or its seed soup) is the study's best net, or it is the linear configuration
+with the best mean over its fresh seeds, its neighbours — its parameters with one of γ (as 1 − γ), the view or the
+rate moved one step (``NEIGHBOUR_STEPS``) — are enqueued once, trained like twins; each being linear, it gets probe
+seeds and soups, and one whose soups become the best net, or whose seeds' mean leads, gets its neighbours in turn: a
+climb on the mean over seeds, the measure the seed race and ``autotune best`` rank configurations by.
 Outside a study, 6 seeds each of gsurma's adagrad twin and of its neighbours greedily souped at 74.83 for the
 twin and at 75.42 (a lane a side less), 75.25 (γ 0.8), 75.06, 75.02, 74.85, 74.66, 74.52, 74.30, 73.98 for them.
 

@@ -295,7 +295,7 @@ def test_a_linear_crowd_setting_gets_its_twins_at_the_ladders_top_whatever_its_o
 
 
 def test_neighbours_move_one_parameter_a_step_inside_the_space() -> None:
-    """Each step of ``NEIGHBOUR_STEPS`` moves its one parameter (1 − γ × 0.5 and × 2, lanes ± 1, patches ahead × 3/4
+    """Each step of ``NEIGHBOUR_STEPS`` moves its one parameter (1 − γ × 2 and × 0.5, lanes ± 1, patches ahead × 3/4
     and × 4/3, patches behind ± 2, the rate × 0.5 and × 2), clipped to the space, an integer rounded but moved by
     one at least; a step that
     changes nothing (at a bound) or whose parameter is not searched is left out."""
@@ -304,7 +304,7 @@ def test_neighbours_move_one_parameter_a_step_inside_the_space() -> None:
               "patches_behind": 1, "one_minus_gamma": 0.1}  # fmt: skip
     made = twins.neighbours(params, (*_spec().space, *extra))
     moved = [next((k, t[k]) for k in t if t[k] != params[k]) for t in made]
-    expected = [("one_minus_gamma", 0.05), ("one_minus_gamma", 0.2), ("lanes_side", 1), ("patches_ahead", 2),
+    expected = [("one_minus_gamma", 0.2), ("one_minus_gamma", 0.05), ("lanes_side", 1), ("patches_ahead", 2),
                 ("patches_ahead", 4), ("patches_behind", 0), ("patches_behind", 3), (LR_X_INPUTS, 1.5),
                 (LR_X_INPUTS, 6.0)]  # fmt: skip
     assert moved == expected  # lanes_side 3 is past the space's 2: left out

@@ -471,6 +471,17 @@ def _waiting(study: optuna.Study) -> list[Any]:
     return study.get_trials(states=(optuna.trial.TrialState.WAITING,))
 
 
+def _train_next(driver: Driver, score: float, seconds: float) -> optuna.trial.Trial:
+    """Start the waiting trial on slot 0 and store it as trained at the ladder's top: ``score`` in ``seconds``."""
+    assert driver._launch_next(0)  # noqa: SLF001
+    trial = driver._running.pop(0).trial  # noqa: SLF001
+    task = driver.pool.tasks[-1]
+    driver._finish(trial, TrialOutcome(trial.number, "complete", score, None, {  # noqa: SLF001
+        keys.CONFIG: task.config, keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: score}],
+        keys.TRIAL_WALL_SECONDS: seconds}))  # fmt: skip
+    return trial
+
+
 def test_with_a_side_share_twins_wait_in_a_plan_and_start_one_at_a_time_while_their_share_allows(
     tmp_path: Path,
 ) -> None:
@@ -486,18 +497,13 @@ def test_with_a_side_share_twins_wait_in_a_plan_and_start_one_at_a_time_while_th
     driver._enqueue_twins()  # noqa: SLF001 - planned counts as done: once per parent
     assert len(study.user_attrs[keys.SIDE_PLAN]) == 3
 
-    driver._release_side()  # noqa: SLF001 - no side time yet: the oldest starts
+    driver._release_side()  # noqa: SLF001 - no side time yet: the first starts
     waiting = _waiting(study)
     assert [t.system_attrs["fixed_params"]["method"] for t in waiting] == ["adagrad"]
     assert waiting[0].user_attrs == {keys.TWIN_OF: first, keys.LADDER_TOP: 1}
     driver._release_side()  # noqa: SLF001 - one waits already: no other
     assert len(_waiting(study)) == 1
-    assert driver._launch_next(0)  # noqa: SLF001
-    twin = driver._running.pop(0).trial  # noqa: SLF001
-    task = driver.pool.tasks[-1]
-    driver._finish(twin, TrialOutcome(twin.number, "complete", 72.0, None, {  # noqa: SLF001
-        keys.CONFIG: task.config, keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: 72.0}],
-        keys.TRIAL_WALL_SECONDS: 60.0}))  # fmt: skip
+    _train_next(driver, 72.0, 60.0)
     driver._release_side()  # noqa: SLF001 - twins 60 s of 160: over a quarter, the search draws
     assert not _waiting(study)
     _add(study, dists, {**hidden, "lanes_side": 2}, 70.0, [(1200, 70.0)], **{keys.TRIAL_WALL_SECONDS: 60.0})
@@ -586,12 +592,7 @@ def test_with_a_side_share_a_new_bests_neighbours_start_before_older_twins(tmp_p
     first = _add(study, dists, hidden, 73.0, [(1200, 73.0)], **{keys.TRIAL_WALL_SECONDS: 10.0})
     driver._enqueue_twins()  # noqa: SLF001
     driver._release_side()  # noqa: SLF001 - the first twin
-    assert driver._launch_next(0)  # noqa: SLF001
-    twin = driver._running.pop(0).trial  # noqa: SLF001
-    task = driver.pool.tasks[-1]
-    driver._finish(twin, TrialOutcome(twin.number, "complete", 74.0, None, {  # noqa: SLF001
-        keys.CONFIG: task.config, keys.RUNGS: [{keys.BUDGET: 1200, keys.SCORE: 74.0}],
-        keys.TRIAL_WALL_SECONDS: 10.0}))  # fmt: skip
+    twin = _train_next(driver, 74.0, 10.0)
     plan = study.user_attrs[keys.SIDE_PLAN]  # the best net is the twin's: its neighbours are planned after the twins
     assert [e["user_attrs"].get(keys.TWIN_OF, e["user_attrs"].get(keys.NEIGHBOUR_OF)) for e in plan] == [
         first, first, first, *[twin.number] * len(twins.neighbours(twin.params, driver.spec.space))]  # fmt: skip

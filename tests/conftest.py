@@ -12,12 +12,18 @@ from typing import Any
 
 import pytest
 
+from autotune.search.cost import FEATURES, CostModel
 from tests.postgres import postgres_server, postgres_url  # noqa: F401  (fixtures: a real PostgreSQL server)
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 REFERENCE = SHARED / "reference"
 CROWD = SHARED / "crowd"
+
+
+def forward_cost_model(seconds: float) -> CostModel:
+    """A cost model whose only work term is the greedy forward pass: a rung costs ``seconds`` × weights × iterations."""
+    return CostModel(tuple(seconds if name == "forward_work" else 0.0 for name in FEATURES))
 
 
 def load_json(path: Path) -> dict:

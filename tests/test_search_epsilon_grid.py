@@ -21,14 +21,17 @@ import pytest
 from autotune import TrainConfig, evaluate_official
 from autotune.learner import train
 from autotune.search import keys, space
-from autotune.search.cost import CostModel, features
+from autotune.search.cost import FEATURES, CostModel, features
 from autotune.search.driver import Driver, race_entry
 from autotune.search.gate import distributions
 from autotune.search.ladder import rung_config, trained_rung_config
 from autotune.search.objective import COMPLETE, PRUNED, TrialTask, choose_epsilon, run_trial
 from autotune.search.spec import EPSILON_SCREEN_RUNS, SpecError, default_screen_runs, parse_spec
 from autotune.search.storage import open_storage
-from tests.conftest import FakePool
+from tests.conftest import FakePool, forward_cost_model
+
+FIXED, CARS, FILLS = (FEATURES.index(k) for k in ("eval_fixed", "eval_cars", "eval_inputs"))
+TRAINING = FEATURES.index("eval_fixed")  # the work terms before it are the training's
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 
@@ -221,7 +224,7 @@ def test_a_halving_trial_records_each_screens_runs_and_the_cost_model_reads_them
     shares = [s[3] / 500 for s in screens]
     want = features(config, screen=[s[0] for s in screens], screen_share=shares)
     assert np.allclose(obs.features, want)
-    assert want[6] == pytest.approx(features(config)[6] * (0.9 + (3 * 20 + 2 * 50) / 500))  # cars: runs' worth
+    assert want[CARS] == pytest.approx(features(config)[CARS] * (0.9 + (3 * 20 + 2 * 50) / 500))  # cars: runs' worth
 
 
 @pytest.mark.parametrize("protocol", ["v2-official", "custom"])
@@ -279,7 +282,7 @@ def test_a_net_static_on_its_screens_is_pruned_without_its_official_score() -> N
     config = rung_config(TINY, 400)
     want = features(config, screen=HALVING_GRID, screen_share=[s[3] / 500 for s in screens], carried=1.0)
     assert np.allclose(obs.features, want)
-    assert want[5] == 1.0 and want[6] == pytest.approx(features(config)[6] * 160 / 500)  # the screens alone
+    assert want[FIXED] == 1.0 and want[CARS] == pytest.approx(features(config)[CARS] * 160 / 500)  # the screens alone
     scored = climb(False)  # without the key the net is scored officially as before
     assert scored.state == COMPLETE and scored.attrs[keys.RUNGS][0][keys.SCORE] is not None and reports == [1, 3]
 
@@ -384,7 +387,7 @@ def test_sampled_trials_screen_and_race_runs_keep_their_own_epsilon(tmp_path: Pa
     assert race_entry(trial, 1200)[2] == cfg.to_mapping()  # type: ignore[index]
     assert TrainConfig.from_mapping(driver._raced_config(trial)).epsilon_test_time == 0.2  # noqa: SLF001
 
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-9, 0.0, 0.0, 0.0, 0.0, 0.0))
+    driver.cost_model = forward_cost_model(1e-9)
     driver._fitted_on = 10**6  # noqa: SLF001
     driver.pool = FakePool()
     driver._race_state()  # noqa: SLF001
@@ -403,10 +406,10 @@ def test_the_cost_model_prices_the_screens(tmp_path: Path) -> None:
     config = TINY.replace(epsilon_test_time=0.0)
     plain = features(config)
     screened = features(config, screen=(0.0, 0.5), screen_share=0.2)
-    assert screened[5] == plain[5]  # one set-up
-    assert screened[6] == pytest.approx(plain[6] * 1.2)  # cars: 0.8 + 2 × 0.2 evaluations' worth
-    assert screened[8] == pytest.approx(plain[8] * (0.8 + 0.2 * (1.0 + 0.5)))  # input fills at each ε_test
-    assert np.array_equal(screened[:5], plain[:5])  # training work unchanged
+    assert screened[FIXED] == plain[FIXED]  # one set-up
+    assert screened[CARS] == pytest.approx(plain[CARS] * 1.2)  # cars: 0.8 + 2 × 0.2 evaluations' worth
+    assert screened[FILLS] == pytest.approx(plain[FILLS] * (0.8 + 0.2 * (1.0 + 0.5)))  # input fills at each ε_test
+    assert np.array_equal(screened[:TRAINING], plain[:TRAINING])  # training work unchanged
     model = CostModel.prior().screening((0.0, 0.5), 0.2)
     assert model.predict(config) > model.predict(config, screened=False) == CostModel.prior().predict(config)
     assert model.fit([]).screen == (0.0, 0.5) and model.fit([]).screen_share == 0.2
@@ -420,8 +423,8 @@ def test_the_cost_model_prices_the_screens(tmp_path: Path) -> None:
     assert halving.screen_carried == 0.1 and halving.screen_share == pytest.approx(0.06)
     expected = features(config, screen=GRID, screen_share=0.06, carried=0.1)  # which value goes on is not known
     assert halving.predict_features(expected) == pytest.approx(halving.predict(config))
-    assert expected[6] == pytest.approx(features(config, screen=GRID, screen_share=[0.04, 0.04, 0.1])[6])  # runs
-    assert features(config, screen=(0.0, 0.5), screen_share=[0.1, 0.2])[6] == pytest.approx(plain[6] * 1.1)
+    assert expected[CARS] == pytest.approx(features(config, screen=GRID, screen_share=[0.04, 0.04, 0.1])[CARS])  # runs
+    assert features(config, screen=(0.0, 0.5), screen_share=[0.1, 0.2])[CARS] == pytest.approx(plain[CARS] * 1.1)
 
 
 def test_a_spec_without_the_grid_searches_epsilon_test_as_before(tmp_path: Path) -> None:

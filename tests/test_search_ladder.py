@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -28,7 +29,7 @@ from autotune.search.ladder import START_LEARN_CAP, Ladder, rung_config, rung_se
 from autotune.search.objective import COMPLETE, PRUNED, TrialOutcome, TrialTask, run_trial, static_policy
 from autotune.search.spec import SpecError, StudySpec, load_spec, parse_spec
 from autotune.search.storage import open_storage
-from tests.conftest import ROOT, FakePool
+from tests.conftest import ROOT, FakePool, forward_cost_model
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 CONFIGS = ROOT / "study_configs"
@@ -393,7 +394,7 @@ def test_the_gate_prices_a_draws_whole_ladder(tmp_path: Path) -> None:
     does not is refused (its value would be a short rung's score, not comparable with the others')."""
     spec = _spec().with_overrides(storage=str(tmp_path / "j.log"))
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver.cost_model = forward_cost_model(1e-6)  # cost ∝ weights × iterations
 
     def price(params: dict[str, Any]) -> float:
         cost = driver._price(params)  # noqa: SLF001 - the gate's question, as the driver asks it
@@ -432,7 +433,7 @@ def test_min_top_gates_the_ladder_below_it_and_cheap_draws_climb_above(tmp_path:
     assert spec.gated_rungs == 2 and parse_spec(spec.to_dict()) == dataclasses.replace(spec, source="spec")
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver.cost_model = forward_cost_model(1e-6)  # cost ∝ weights × iterations
     driver._fitted_on = 0  # noqa: SLF001 - keep the model above (no finished trial to refit on)
     small, large = (space.encode(spec, TINY.replace(layers=layers)) for layers in ("fc:2:relu", "fc:8:relu|fc:8:tanh"))
     price = {}
@@ -493,6 +494,27 @@ def test_the_prior_cost_model_predicts_measured_rungs() -> None:
     assert greedy > 1.5 * mostly_random
 
 
+def test_the_prior_prices_a_linear_net_on_the_whole_road() -> None:
+    """A linear net's batch update is no larger than gathering its batch's input rows from the replay memory, so
+    without ``gather_work`` the prior prices the whole road's 810k linear training (46 measured, 222–289 s:
+    tests/data/cost_wide_linear.json.gz) at about half its time; with it, within 10 % (median)."""
+    from tests.conftest import load_json
+
+    rungs = load_json(ROOT / "tests" / "data" / "cost_wide_linear.json.gz")["rungs"]
+    configs = [TrainConfig.from_mapping(r["config"]) for r in rungs]
+    seconds = [r["seconds"] for r in rungs]
+    prior = CostModel.prior()
+    without = list(prior.coef)
+    without[FEATURES.index("gather_work")] = 0.0
+
+    def median_error(model: CostModel) -> float:
+        return statistics.median(abs(model.predict(c) - s) / s for c, s in zip(configs, seconds, strict=True))
+
+    assert len(rungs) == 46 and all(not c.layers and c.lanes_side == 6 and c.train_iterations == 810_000
+                                    for c in configs)  # fmt: skip
+    assert median_error(prior) < 0.10 < 0.45 < median_error(CostModel(tuple(without)))
+
+
 def test_cost_model_fits_rungs() -> None:
     """Fitted to rungs that follow a known cost law, the model predicts a new config within 35 %."""
     truth = CostModel(tuple(3 * c for c in CostModel.prior().coef))
@@ -503,6 +525,8 @@ def test_cost_model_fits_rungs() -> None:
     new = TINY.replace(layers="fc:128:tanh|fc:32:relu", batch_size=32, other_agents=3, train_iterations=5000)
     assert abs(fitted.predict(new) - truth.predict(new)) / truth.predict(new) < 0.35
     assert len(fitted.coef) == len(FEATURES) and all(c >= 0 for c in fitted.coef)
+    with pytest.raises(ValueError, match=r"CostModel: 9 coefficients for the 10 work terms of FEATURES \(decisions, "):
+        CostModel(fitted.coef[:9])  # a model of fewer terms (as before gather_work) is an error, not a misalignment
 
 
 def test_plan_lowers_the_top_rung_to_the_cap() -> None:
@@ -1119,7 +1143,7 @@ def _race_driver(tmp_path: Path, name: str, workers: int, min_top: int = 0) -> t
     spec = parse_spec(data, source="race.toml").with_overrides(storage=str(tmp_path / "j.log"), workers=workers)
     driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
     study = driver.open_study()
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-3, 0.0, 0.0, 0.0, 0.0, 0.0))  # cost ∝ weights × iterations
+    driver.cost_model = forward_cost_model(1e-3)  # cost ∝ weights × iterations
     dists = distributions(spec)
     layouts = {"fc:8:relu": 70.0, "fc:8:relu|fc:8:tanh": 72.0, "": 60.0, "fc:4:relu": 65.0}
     for layers, value in layouts.items():
@@ -1240,7 +1264,7 @@ def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> No
     storages = open_storage(spec.study.storage, spec.study.name)
     driver = Driver(spec, storages)
     study = driver.open_study()
-    driver.cost_model = CostModel((0.0, 0.0, 0.0, 1e-9, 0.0, 0.0, 0.0, 0.0, 0.0))
+    driver.cost_model = forward_cost_model(1e-9)
     driver._fitted_on = 10**6  # noqa: SLF001 - keep the model above
     dists = distributions(spec)
 

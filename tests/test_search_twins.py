@@ -291,6 +291,42 @@ def test_a_linear_crowd_setting_gets_its_twins_at_the_ladders_top_whatever_its_o
     assert driver.pool.tasks[-1].rungs == (1200,) and driver.pool.tasks[-1].config["learning_rate"] > 1e-4
 
 
+@pytest.mark.parametrize("side_cap", [None, "top"])
+def test_a_twin_is_priced_against_max_side_cost_s(tmp_path: Path, side_cap: str | None) -> None:
+    """A crowd twin whose top rung is over max_trial_cost_s trains at the rung below it, unless max_side_cost_s
+    affords the top: a linear net on the whole road takes ~250 s at 810k, over a ladder's 180 s cap, and at 270k
+    that view scored 69–74 where at 810k it scored 75."""
+    linear = {**space.encode(_spec(), HIDDEN), "n_layers": 0, "method": "adagrad", LR_X_INPUTS: 3.0}
+    model = CostModel.prior()
+    low, top = (model.predict(space.to_config(_spec(), linear, b)) for b in (400, 1200))
+    study_keys: dict[str, Any] = {"max_trial_cost_s": (low + top) / 2}  # the top alone does not fit
+    if side_cap:
+        study_keys["max_side_cost_s"] = top * 1.01
+    data = {**_data(linear_twins=RATES, **study_keys), "warm_start": {"crowd": True, "crowd_twins": True}}
+    spec = parse_spec(data, source="x").with_overrides(storage=str(tmp_path / "j.log"))
+    assert spec.study.side_cost_cap_s == (top * 1.01 if side_cap else (low + top) / 2)
+    driver = Driver(spec, open_storage(spec.study.storage, spec.study.name))
+    study = driver.open_study()
+    driver.pool, driver._t0, driver.cost_model = FakePool(), time.perf_counter(), model  # noqa: SLF001
+    _add(study, distributions(spec), linear, None, [(400, 40.0)], **{keys.WARM_START: "crowd:lin"})
+    driver._enqueue_twins()  # noqa: SLF001
+    assert driver._launch_next(0)  # noqa: SLF001
+    assert driver.pool.tasks[-1].rungs == ((1200,) if side_cap else (400,))
+
+
+def test_max_side_cost_s_is_checked() -> None:
+    assert _spec().study.max_side_cost_s is None and "max_side_cost_s" not in _spec().to_dict()["study"]
+    spec = _spec(linear_twins=RATES, max_trial_cost_s=100, max_side_cost_s=300)
+    assert spec.study.side_cost_cap_s == 300 and spec.study.cost_cap_s == 100
+    assert spec.to_dict()["study"]["max_side_cost_s"] == 300.0
+    assert _spec(linear_twins=RATES, max_trial_cost_s=100).study.side_cost_cap_s == 100  # default: the gate's cap
+    with pytest.raises(SpecError, match=r"\[study\] max_side_cost_s: must be a positive number of seconds, got 0"):
+        _spec(linear_twins=RATES, max_side_cost_s=0)
+    with pytest.raises(SpecError, match=r"max_side_cost_s: caps the training of a linear twin or neighbour, but "
+                                        r"neither is on.*remove max_side_cost_s"):  # fmt: skip
+        _spec(max_side_cost_s=300)
+
+
 # -- linear neighbours ------------------------------------------------------------------------
 
 

@@ -6,7 +6,9 @@ non-negative work terms whose coefficients are seconds per unit of work:
 
 * training, per decision: the simulator step (∝ 1 + other_agents: every car moves), the input window
   and the greedy forward pass (∝ inputs, ∝ params), and once learning started one batch update
-  (∝ params × batch: the s₀ and s₁ halves through the net, then the backward pass);
+  (∝ params × batch: the s₀ and s₁ halves through the net, then the backward pass), and the batch's input rows
+  gathered from the replay memory (∝ batch × inputs: for a linear net as large as the update itself, so a linear
+  net on the whole road was priced at 125–180 s for the 224–289 s its 810k training took without it);
 * the official evaluation: a fixed part, one forward pass per decision of every red car
   (∝ (1 + other_agents) and ∝ params × (1 + other_agents)), and per greedy decision the input ``Vol``
   convnetjs allocates, whose Gaussian fill the exact evaluation replays draw for draw
@@ -40,6 +42,7 @@ FEATURES = (
     "input_decisions",  # B·inputs: building the input window
     "forward_work",  # B·params: the greedy forward pass
     "update_work",  # (B − start)·params·batch: the batch update
+    "gather_work",  # (B − start)·batch·inputs: the batch's input rows gathered from the replay memory
     "eval_fixed",  # 1 per rung: the official evaluation's set-up (engine, brain build)
     "eval_cars",  # 1+K: cars simulated by the official runs
     "eval_forward",  # params·(1+K): one forward per red car per decision of the official runs
@@ -53,6 +56,7 @@ PRIOR = np.array([
     2.04e-8,  # s per input per decision
     6.39e-10,  # s per weight per decision (greedy forward, numpy views)
     1.09e-10,  # s per weight × batch sample per update (2B-row forward + backward, torch)
+    1.72e-9,  # s per input × batch sample per update (the replay rows gathered into the batch)
     0.764,  # s per official evaluation (engine + brain build, 500 runs of 2,000 frames)
     0.00631,  # s per red car of the official runs
     2.66e-6,  # s per weight per red car (~33,500 float64 forward passes per car)
@@ -63,7 +67,11 @@ PRIOR = np.array([
 prior, 2 workers on the 2-core reference machine, load about 2): median error 11.7 % (90th percentile 34 %) on
 those rungs. Without the ``eval_inputs`` term the best fit was off by a median 16.4 % (90th percentile 47 %) —
 the official evaluation's own time, by 23 % against 8 % — and the earlier 8-term prior, fitted to 28 rungs, by
-a median 94 % (over-predicting)."""
+a median 94 % (over-predicting). ``gather_work``'s coefficient is the same kind of fit, all ten terms, to the rungs
+of ten search-quality hours of 6–7 Dec 2026 (paper.toml, cold and with the crowd prior); the other nine keep their
+values. Replayed online over those hours (each trial priced by the fit to the rungs finished before it started),
+it cut the median error of the crowd-prior hours, whose trials are mostly linear nets on the whole road, from
+26–36 % to 4–8 %, and left the cold hours' at 4–12 % (before 9–16 %)."""
 
 _PRIOR_WEIGHT = 4.0
 """The prior counts as this many observations (spread over its anchor configurations)."""
@@ -99,7 +107,8 @@ def features(
     runs = rest + (sum(shares) if k else 0.0)  # official evaluations' worth of runs
     screened = sum(x * (1.0 - e) for x, e in zip(shares, screen, strict=True)) if k else 0.0  # their greedy runs
     greedy = rest * (1.0 - config.epsilon_test_time) + screened
-    return np.array([b, b * cars, b * config.net_inputs, b * p, learning * p * config.batch_size,
+    batch = learning * config.batch_size
+    return np.array([b, b * cars, b * config.net_inputs, b * p, batch * p, batch * config.net_inputs,
                      ev, runs * cars, runs * p * cars, cars * greedy * config.net_inputs])  # fmt: skip
 
 
@@ -148,6 +157,11 @@ class CostModel:
     screen_carried: float = 0.0
     """The share the chosen screen ran (the halving's last stage), carried on into the official evaluation; 0:
     ``screen_share`` (one stage)."""
+
+    def __post_init__(self) -> None:
+        if len(self.coef) != len(FEATURES):
+            raise ValueError(f"CostModel: {len(self.coef)} coefficients for the {len(FEATURES)} work terms of "
+                             f"FEATURES ({', '.join(FEATURES)}); give one per term")  # fmt: skip
 
     @classmethod
     def prior(cls) -> CostModel:
@@ -235,9 +249,10 @@ def plan(configs: Sequence[TrainConfig], model: CostModel, cap_s: float, top: in
 
 def plan_one(configs: Sequence[TrainConfig], model: CostModel, cap_s: float, top: int | None = None) -> Plan | None:
     """The one rung a trial trains without its screens (a linear twin or neighbour): the highest rung ≤ ``top``
-    whose own predicted cost fits ``cap_s``; None: not even rung 0 does. Priced alone, not as a ladder: such a trial
-    never trains the rungs below (``plan`` would cap a crowd setting's twin on the whole road at 270k, where the
-    view scored 69–74, for the 108 s its 810k training is predicted to take)."""
+    whose own predicted cost fits ``cap_s`` (the driver passes ``[study] max_side_cost_s``); None: not even rung 0
+    does. Priced alone, not as a ladder: such a trial never trains the rungs below (``plan`` would cap a crowd
+    setting's twin on the whole road at 270k, where the view scored 69–74, for the rungs under its 810k training,
+    which alone takes ~250 s)."""
     last = len(configs) - 1 if top is None else min(top, len(configs) - 1)
     for config in reversed(configs[: last + 1]):
         c = model.predict(config)

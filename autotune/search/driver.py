@@ -1437,16 +1437,19 @@ class Driver:
                 top = trial.user_attrs.get(keys.LADDER_TOP)
                 # the top: the highest rung that fits the cap and the time left (a rung the deadline would stop
                 # is never started); at least the rungs the gate priced when the deadline is far
-                cap = self._draw_cap()
-                if twin and self.spec.ladder:  # one training at its parent's budget: no screening rung prunes it
-                    predicted = plan_one(configs, self._model(), cap, top)
-                else:
-                    predicted = plan(configs, self._model(), cap, top)
+                alone = twin and bool(self.spec.ladder)  # one training at its parent's budget: no screening
+                # rung prunes it, and no ladder below it is paid for ([study] max_side_cost_s)
+                study_cap = self.spec.study.side_cost_cap_s if alone else self.spec.study.cost_cap_s
+                cap = min(study_cap, self._time_left())
+                predicted = (plan_one if alone else plan)(configs, self._model(), cap, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
-                    if cap >= self.spec.study.cost_cap_s:
+                    if cap >= study_cap:
+                        key = ("max_side_cost_s" if alone and self.spec.study.max_side_cost_s is not None else
+                               "max_trial_cost_s" if self.spec.study.max_trial_cost_s is not None else
+                               "trial_timeout_s")  # fmt: skip
                         raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over "
-                                       f"the study's cost cap of {cap:,.0f} s")  # fmt: skip
+                                       f"the study's cost cap of {cap:,.0f} s ([study] {key})")  # fmt: skip
                     # the deadline came nearer while the draw was made: stopped by it before training, like a
                     # running trial it stops (PRUNED with a 'deadline' cause), not a failure
                     raise _Refused(f"deadline: the study's time budget ended (before training: its cheapest rung "

@@ -10,7 +10,7 @@ Five tables, every key optional unless said otherwise::
                   seed_soup_families, seed_soup_runs, seed_soup_reach, balance_every_draw, linear_twins,
                   linear_twin_span, seed_ensembles, seed_soup_swap_span, linear_neighbours, seed_soup_leader,
                   seed_soup_best, seed_soup_best_span, prior_free_share, seed_soup_views, balance_prune_apart,
-                  side_share
+                  side_share, max_side_cost_s
     [fixed]       any TrainConfig field (snake_case or DeepTraffic camelCase), e.g. otherAgents = 10
     [space]       name = { low = …, high = …, log = true|false, step = … }  or  name = { choices = [...] }
     [evaluation]  report_points, quick_runs, quick_frames, final_protocol, n_startup_trials, n_warmup_steps
@@ -342,11 +342,20 @@ class StudySection:
     """With linear_twins or linear_neighbours: the most of the workers' time so far that twins and neighbours may
     have taken when the next one starts; the rest wait, the newest parent's first (``driver.next_side_entry``),
     while the search draws; 1: each starts as soon as it is enqueued, before the sampler's next draw."""
+    max_side_cost_s: float | None = None
+    """With linear_twins or linear_neighbours: the cost cap [s] of one twin's or neighbour's training, priced alone
+    at its parent's budget (it climbs no ladder below it; over the cap it trains at the highest rung that fits);
+    None: max_trial_cost_s, which caps a sampled trial's whole ladder."""
 
     @property
     def cost_cap_s(self) -> float:
         """The cap the cost gate uses [s]: max_trial_cost_s, else the trial limit."""
         return self.max_trial_cost_s if self.max_trial_cost_s is not None else self.trial_timeout_s
+
+    @property
+    def side_cost_cap_s(self) -> float:
+        """The cap of one linear twin's or neighbour's training [s]: max_side_cost_s, else the cost gate's cap."""
+        return self.max_side_cost_s if self.max_side_cost_s is not None else self.cost_cap_s
 
 
 @dataclasses.dataclass(frozen=True)
@@ -565,6 +574,8 @@ class StudySpec:
                 del study[key]
         if study["side_share"] == 1.0:  # likewise (its default: no cap)
             del study["side_share"]
+        if study["max_side_cost_s"] is None:  # likewise
+            del study["max_side_cost_s"]
         warm = dataclasses.asdict(self.warm_start)
         if not warm["crowd_twins"]:  # likewise
             del warm["crowd_twins"]
@@ -888,13 +899,19 @@ def _parse_study(table: Mapping[str, Any], src: str, default_name: str | None) -
     if side < 1.0 and not (twins or neighbours):
         raise where.error("side_share", "caps the time of linear twins and neighbours, but neither is on",
                           "set linear_twins or linear_neighbours = true, or remove side_share")  # fmt: skip
+    side_cap = table.get("max_side_cost_s")
+    if side_cap is not None:
+        side_cap = _pos_float(side_cap, f"{src}: [study] max_side_cost_s")
+        if not (twins or neighbours):
+            raise where.error("max_side_cost_s", "caps the training of a linear twin or neighbour, but neither is on",
+                              "set linear_twins or linear_neighbours = true, or remove max_side_cost_s")  # fmt: skip
     return StudySection(
         name, ruleset, sampler, pruner, n_trials, timeout_s, seed, storage, max_retries, trial_timeout_s,
         startup, cap, race, race_configs, race_seeds, tuple(balance), share,
         tuple((k, tuple(v)) for k, v in values.items()), denoise, quantile, memory, intensify,
         intensify_runs, refine, refine_iterations, refine_lr, refine_runs, refine_start, soups, span, seed_soups,
         greedy, families, seed_runs, reach, every_draw, twins, twin_span, stacks, swap_span, neighbours, leader,
-        best_seeds, best_span, prior_free, views, tuple(apart), side,
+        best_seeds, best_span, prior_free, views, tuple(apart), side, side_cap,
     )  # fmt: skip
 
 

@@ -454,7 +454,9 @@ def test_the_linear_configuration_with_the_best_seed_mean_gets_neighbours_so_a_b
 
 def test_the_linear_configuration_of_the_best_single_net_gets_neighbours_at_that_nets_budget(tmp_path: Path) -> None:
     """Not only a soup's: a crowd-prior hour's crowd twin was the best net from minute 6, its soups the best only from
-    minute 18, and its neighbours, planned then, never trained before the race."""
+    minute 18, and its neighbours, planned then, never trained before the race. But not a rung below the seed
+    race's floor: a cold hour's first best nets are 10k rungs, and their neighbours (and theirs) took 27 of its
+    first 50 trials."""
     driver, study, dists, linear = _neighbours_driver(tmp_path)
     hidden = space.encode(driver.spec, HIDDEN)
 
@@ -465,8 +467,10 @@ def test_the_linear_configuration_of_the_best_single_net_gets_neighbours_at_that
     _add(study, dists, hidden, 73.0, [(1200, 73.0)])
     assert parents() == []  # the best net has hidden layers
     kept = {keys.ARTIFACT_RUNG_NETS: {"400": "a", "1200": "b"}, keys.OFFICIAL_PROTOCOL: "v2-official"}
-    ladder = _add(study, dists, linear, 72.0, [(400, 74.0), (1200, 72.0)], **kept)
-    assert parents() == [(ladder, 400)]  # a sampled ladder trial's lower rung: that rung's budget
+    low = _add(study, dists, {**linear, LR_X_INPUTS: 7.0}, 72.0, [(400, 74.0), (1200, 72.0)], **kept)
+    assert parents() == []  # its best net is a rung below the seed race's floor (min_top, here 1200): none
+    ladder = _add(study, dists, linear, 74.2, [(400, 71.0), (1200, 74.2)], **kept)
+    assert parents() == [(ladder, 1200)] and low != ladder  # a sampled ladder trial's rung at the floor or above
     twin = _add(study, dists, {**linear, LR_X_INPUTS: 3.0}, 74.5, [(1200, 74.5)], **{keys.TWIN_OF: 0})
     assert parents() == [(twin, 1200)]  # a twin's own net
     seed = _add(study, dists, linear, 75.0, [(1200, 75.0)], **{keys.RACE_OF: ladder, keys.RACE_SEED: 0})

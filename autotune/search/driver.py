@@ -1728,7 +1728,7 @@ class Driver:
         parents: list[tuple[int, dict[str, Any], Any]] = []
         own = self._prior_free(trials)
         for pool in (trials,) if own is None else (trials, own):
-            found = _best_linear_configuration(pool)
+            found = _best_linear_configuration(pool, self.spec.race_min_budget)
             if found is not None:
                 parents.append(found)
         seed_configs: dict[int, Mapping[str, Any]] = {}  # a configuration's seed runs' config (their budget)
@@ -1892,16 +1892,19 @@ def _best_score(trials: Sequence[FrozenTrial], fresh: bool = False) -> float | N
     return None if best is None else best[0]
 
 
-def _best_linear_configuration(trials: Sequence[FrozenTrial]) -> tuple[int, dict[str, Any], Any] | None:
+def _best_linear_configuration(trials: Sequence[FrozenTrial], floor: int = 0) -> tuple[int, dict[str, Any], Any] | None:
     """(configuration, parameters, budget) of the best net's configuration when it has no hidden layers: a seed
     soup's (``seed_soup_of``, moved from its best ingredient's parameters), a fresh seed run's (``race_of``), or the
-    trial's own when the best net is its first training (a sampled trial's rung, a twin, a neighbour); None before
-    any, with hidden layers, or when the best net was refined or copied (no first measure of a configuration).
+    trial's own when the best net is its first training (a sampled trial's rung, a twin, a neighbour) of ``floor``
+    iterations or more (the seed race's, ``min_top``); None before any, with hidden layers, below the floor, or when
+    the best net was refined or copied (no first measure of a configuration).
 
     Why a single net too, not only a soup: a crowd-prior hour's best net was the crowd twin of jnorthrup-v05 (75.39)
     from minute 6, but its soups became the best net only at minute 18 (seed 3) and later, so its neighbours were
     planned too late to train before the race (seed 3) or until minute 29 (seed 2), where the one with 1 - γ
-    doubled scored 75.85 at minute 33 (its 9 seeds at 810k: median 75.72)."""
+    doubled scored 75.85 at minute 33 (its 9 seeds at 810k: median 75.72). Why the floor: a cold hour's first best
+    nets are 10k rungs (60 mph), and without it (seed 3) neighbours of neighbours of them took 27 of its first 50
+    trials at 10k, and its best stood at 70.1 at minute 17 (with soup parents only: 73.8 at minute 15)."""
     best = _best_net(trials)
     if best is None:
         return None
@@ -1916,8 +1919,10 @@ def _best_linear_configuration(trials: Sequence[FrozenTrial]) -> tuple[int, dict
     if keys.SOUP_OF in attrs or keys.REFINE_OF in attrs:
         return None
     budget = next(b for s, b in scored_nets(attrs, t.value, t.state == TrialState.COMPLETE) if s == best[0])
-    return (int(attrs.get(keys.RACE_OF, t.number)), dict(t.params),
-            config.get("train_iterations") if budget is None else budget)  # fmt: skip
+    budget = config.get("train_iterations") if budget is None else budget
+    if not isinstance(budget, int) or budget < floor:
+        return None
+    return int(attrs.get(keys.RACE_OF, t.number)), dict(t.params), budget
 
 
 def next_side_entry(plan: Sequence[Mapping[str, Any]]) -> int | None:

@@ -1247,6 +1247,8 @@ def test_a_draw_the_deadline_overtakes_is_pruned_at_the_deadline_not_failed(tmp_
     over = study.trials[-1]
     assert over.state == optuna.trial.TrialState.FAIL and driver.pool.tasks == []
     assert over.user_attrs[keys.CAUSE].startswith("refused: its cheapest rung is predicted to take")
+    assert over.user_attrs[keys.CAUSE].endswith("s ([study] max_trial_cost_s)")  # the key to raise
+    assert dataclasses.replace(capped, max_trial_cost_s=None).cap_key() == "trial_timeout_s"  # the cap without it
 
 
 def test_a_kept_rung_that_beat_its_top_races_at_its_budget(tmp_path: Path) -> None:

@@ -320,6 +320,8 @@ def test_max_side_cost_s_is_checked() -> None:
     assert spec.study.side_cost_cap_s == 300 and spec.study.cost_cap_s == 100
     assert spec.to_dict()["study"]["max_side_cost_s"] == 300.0
     assert _spec(linear_twins=RATES, max_trial_cost_s=100).study.side_cost_cap_s == 100  # default: the gate's cap
+    assert spec.study.cap_key(side=True) == "max_side_cost_s" and spec.study.cap_key() == "max_trial_cost_s"
+    assert _spec(linear_twins=RATES, max_trial_cost_s=100).study.cap_key(side=True) == "max_trial_cost_s"
     with pytest.raises(SpecError, match=r"\[study\] max_side_cost_s: must be a positive number of seconds, got 0"):
         _spec(linear_twins=RATES, max_side_cost_s=0)
     with pytest.raises(SpecError, match=r"max_side_cost_s: caps the training of a linear twin or neighbour, but "

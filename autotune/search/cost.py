@@ -8,7 +8,7 @@ non-negative work terms whose coefficients are seconds per unit of work:
   and the greedy forward pass (∝ inputs, ∝ params), and once learning started one batch update
   (∝ params × batch: the s₀ and s₁ halves through the net, then the backward pass), and the batch's input rows
   gathered from the replay memory (∝ batch × inputs: for a linear net as large as the update itself, so a linear
-  net on the whole road was priced at 125–180 s for the 224–289 s its 810k training took without it);
+  net on the whole road was priced at 125–180 s for the 222–289 s its 810k training took without it);
 * the official evaluation: a fixed part, one forward pass per decision of every red car
   (∝ (1 + other_agents) and ∝ params × (1 + other_agents)), and per greedy decision the input ``Vol``
   convnetjs allocates, whose Gaussian fill the exact evaluation replays draw for draw
@@ -70,8 +70,8 @@ the official evaluation's own time, by 23 % against 8 % — and the earlier 8-te
 a median 94 % (over-predicting). ``gather_work``'s coefficient is the same kind of fit, all ten terms, to the rungs
 of ten search-quality hours of 6–7 Dec 2026 (paper.toml, cold and with the crowd prior); the other nine keep their
 values. Replayed online over those hours (each trial priced by the fit to the rungs finished before it started),
-it cut the median error of the crowd-prior hours, whose trials are mostly linear nets on the whole road, from
-26–36 % to 4–8 %, and left the cold hours' at 4–12 % (before 9–16 %)."""
+it cut the median error of the four crowd-prior hours with crowd twins, whose trials are mostly linear nets on the
+whole road, from 26–36 % to 4–8 %, and of the other six (cold, or without crowd twins) from 9–13 % to 4–13 %."""
 
 _PRIOR_WEIGHT = 4.0
 """The prior counts as this many observations (spread over its anchor configurations)."""

@@ -675,10 +675,12 @@ class Driver:
                 f"{config.replay_rows:,} × {config.net_inputs:,} inputs), over the memory cap of {cap:,.1f} GB "
                 f"([study] max_trial_memory_gb)")  # fmt: skip
 
-    def _draw_cap(self) -> float:
-        """The gate's cap for the next draw: the study's cost cap, or the time left if less (a ladder the deadline
-        would stop is refused: its finished rungs are no value, and its worker's time is lost)."""
-        return min(self.spec.study.cost_cap_s, self._time_left())
+    def _draw_cap(self, side: bool = False) -> float:
+        """The gate's cap for the next draw: the study's cost cap (``side``: a twin's or neighbour's one training,
+        ``max_side_cost_s``), or the time left if less (a ladder the deadline would stop is refused: its finished
+        rungs are no value, and its worker's time is lost)."""
+        study = self.spec.study
+        return min(study.side_cost_cap_s if side else study.cost_cap_s, self._time_left())
 
     def _worth_starting(self) -> bool:
         """False once the time left is below the cheapest ladder up to the gated rungs (``min_top``) this study has
@@ -1439,17 +1441,14 @@ class Driver:
                 # is never started); at least the rungs the gate priced when the deadline is far
                 alone = twin and bool(self.spec.ladder)  # one training at its parent's budget: no screening
                 # rung prunes it, and no ladder below it is paid for ([study] max_side_cost_s)
-                study_cap = self.spec.study.side_cost_cap_s if alone else self.spec.study.cost_cap_s
-                cap = min(study_cap, self._time_left())
+                cap = self._draw_cap(alone)
                 predicted = (plan_one if alone else plan)(configs, self._model(), cap, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
-                    if cap >= study_cap:
-                        key = ("max_side_cost_s" if alone and self.spec.study.max_side_cost_s is not None else
-                               "max_trial_cost_s" if self.spec.study.max_trial_cost_s is not None else
-                               "trial_timeout_s")  # fmt: skip
+                    if cap >= (self.spec.study.side_cost_cap_s if alone else self.spec.study.cost_cap_s):
                         raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over "
-                                       f"the study's cost cap of {cap:,.0f} s ([study] {key})")  # fmt: skip
+                                       f"the study's cost cap of {cap:,.0f} s ([study] "
+                                       f"{self.spec.study.cap_key(alone)})")  # fmt: skip
                     # the deadline came nearer while the draw was made: stopped by it before training, like a
                     # running trial it stops (PRUNED with a 'deadline' cause), not a failure
                     raise _Refused(f"deadline: the study's time budget ended (before training: its cheapest rung "

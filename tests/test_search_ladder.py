@@ -633,6 +633,24 @@ def test_configurations_measured_on_fresh_seeds_join_the_race_by_their_mean() ->
     assert [e.number for e in racing.field_order(candidates, {})] == [1, 6, 4, 5, 0, 3]  # nothing measured
 
 
+def test_the_best_unmeasured_configuration_joins_the_race_second() -> None:
+    """``field_order``: after the measured leader, the best-scored configuration with fewer than 3 fresh seeds,
+    though its selecting score less the optimism ranks below measured ones (a 30-minute crowd-prior study raced
+    three of gsurma's settings, not its best net's configuration, 75.56 and not yet reseeded)."""
+    cfg = {n: {"x": n} for n in range(5)}
+    values = (75.5, 75.6, 75.4, 75.56, 74.5)
+    candidates = [(n, v, cfg[n]) for n, v in enumerate(values)]
+    results: dict[tuple[int, int], float | None] = {}
+    for number, scores in {0: (73.2, 73.4, 73.0), 1: (73.0, 73.1, 72.9), 2: (72.8, 72.9, 72.7)}.items():
+        results |= {(number, s): v for s, v in enumerate(scores)}
+    # optimism: the median of 2.3, 2.6, 2.6 = 2.6: 3 would rank at 72.96, below 1 (73.0); 4 at 71.9
+    assert [e.number for e in racing.field_order(candidates, results)] == [0, 3, 1, 2, 4]
+    results |= {(3, s): v for s, v in enumerate((70.0, 70.5, 71.0))}  # measured now: by its mean, last
+    assert [e.number for e in racing.field_order(candidates, results)] == [0, 4, 1, 2, 3]
+    optimistic = {**results, (0, 3): 65.0, (0, 4): 65.0}  # 0 falls to 69.92: 1 leads, 4 is still unmeasured
+    assert [e.number for e in racing.field_order(candidates, optimistic)] == [1, 4, 2, 3, 0]
+
+
 def test_race_halves_the_field_each_round() -> None:
     field = [10, 11, 12, 13]
     runs, over = racing.next_runs(field, {}, set(), 1)
@@ -1199,6 +1217,26 @@ def test_the_provisional_leader_enters_the_race_though_its_selecting_score_is_lo
                         keys.RACE_SEED: seed, keys.SEED_SOUP_RUN: True},
         ))  # fmt: skip
     assert driver._race_field()[0] == [2, 1]  # noqa: SLF001
+
+
+def test_the_race_field_counts_only_the_first_rounds_runs_not_yet_launched(tmp_path: Path) -> None:
+    """The leader's seed runs are the race's first seeds: they take no more of the time left, so on one worker the
+    next entrant joins in the time one leader's run would take (counted in full, only the cheapest could)."""
+    from autotune.search.driver import RACE_MARGIN
+
+    driver, cost = _race_driver(tmp_path, "seeded", workers=1)
+    assert driver.study is not None
+    leader = driver.study.trials[1]  # the dearest configuration, 72.0: three seed runs, race seed 0 among them
+    for seed, value in enumerate((71.0, 71.5, 71.5)):
+        driver.study.add_trial(optuna.trial.create_trial(
+            params=leader.params, distributions=leader.distributions, value=value,
+            user_attrs={keys.CONFIG: leader.user_attrs[keys.CONFIG], keys.SEED: 100 + seed, keys.RACE_OF: 1,
+                        keys.RACE_SEED: seed, keys.SEED_SOUP_RUN: True},
+        ))  # fmt: skip
+    driver._fitted_on = len(driver.study.trials)  # noqa: SLF001 - keep the cost model (no refit on the seed runs)
+    _left(driver, cost[1] * RACE_MARGIN * 1.01)  # a run of the leader fits; with one run of 0 beside it, not
+    assert cost[1] + cost[0] > cost[1] * 1.01
+    assert driver._race_field()[0] == [1, 0]  # noqa: SLF001
 
 
 def test_an_entrant_too_long_for_the_time_left_races_at_a_lower_rung(tmp_path: Path) -> None:

@@ -596,11 +596,14 @@ class Driver:
 
         Planned so that the first round finishes: an entrant whose run, padded by ``RACE_MARGIN``, would not fit
         the time left races at the highest lower rung (``race_min_budget`` or above) that does, or not at all;
-        and entrants join in ``racing.field_order`` (the leader by mean over fresh seeds first, then by their
-        fresh mean or their selecting score less the study's optimism) while
-        the round's runs, spread over the workers, fit the time left — a
+        and entrants join in ``racing.field_order`` (the leader by mean over fresh seeds first, the best unmeasured
+        configuration second, then by their fresh mean or their selecting score less the study's optimism) while
+        the round's runs not yet launched, spread over the workers, fit the time left — a
         run the deadline stops scores nothing after taking a worker (measured: a 10-minute study's only entrant
-        raced at 810k, predicted just under the 143 s left, took 147 s, and both its runs were lost)."""
+        raced at 810k, predicted just under the 143 s left, took 147 s, and both its runs were lost). The leader's
+        seed runs are the round's first seeds, so it usually adds nothing: counted in full, an 810k leader (~230 s a
+        run, 2 seeds) leaves no room in a 30-minute study's 7.5-minute race on 2 workers for a second 810k entrant
+        ((460 + 460) / 2 × 1.25 = 575 s of 450), and cheap 90k entrants take its place."""
         assert self.study is not None
         left = self._time_left()
         results, launched = self._race_results()
@@ -616,7 +619,7 @@ class Driver:
         field: list[int] = []
         load = 0.0  # worker-seconds of the first round so far
         for e in racing.field_order(candidates, results):
-            need = seeds * costs[e.number]
+            need = costs[e.number] * sum((e.number, s) not in launched for s in range(seeds))
             if field and (load + need) / workers * RACE_MARGIN > left:
                 continue  # a cheaper entrant further down may still fit
             field.append(e.number)

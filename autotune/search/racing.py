@@ -158,12 +158,16 @@ def field_order(
     A configuration measured on ``min_seeds`` fresh seeds or more (``provisional_standings`` over ``results``)
     ranks by its fresh mean; one measured less, by its selecting score less the study's optimism (the median, over
     the measured ones, of selecting score minus fresh mean; 0 while none is measured); the measured leader (the
-    pick ``autotune best`` shows before the race) comes first whatever the others' estimates. Why: a selecting
-    score is a best-of-many, a fresh mean is not. A crowd-prior hour (study seed 1) raced a linear neighbour on its
-    selecting 75.10 although its 150 seed runs averaged 70.9; it tied its rival on the race's 4 seeds, won on
-    their mean, and averaged 70.23 on 3 fresh seeds, while the leader, gsurma's setting at 73.2 over 5 seeds,
-    never raced. The leader's seed runs are race runs, so it enters at no cost, and the race replaces the pick
-    only by beating it on the same seeds."""
+    pick ``autotune best`` shows before the race) comes first whatever the others' estimates, and the best-scored
+    configuration not yet measured second. Why: a selecting score is a best-of-many, a fresh mean is not. A
+    crowd-prior hour (study seed 1) raced a linear neighbour on its selecting 75.10 although its 150 seed runs
+    averaged 70.9; it tied its rival on the race's 4 seeds, won on their mean, and averaged 70.23 on 3 fresh seeds,
+    while the leader, gsurma's setting at 73.2 over 5 seeds, never raced. The leader's seed runs are race runs, so
+    it enters at no cost, and the race replaces the pick only by beating it on the same seeds. Why the best
+    unmeasured one second: the race is the only measurement it gets, and a measured configuration below the leader
+    has already lost to it on average; a 30-minute crowd-prior study (seed 0) raced the leader and three of
+    gsurma's settings while its best net's configuration (75.56, a γ neighbour of the crowd twin, 7 minutes old)
+    waited for its first fresh seed, and picked gsurma's adagrad twin (71.80 on 3 fresh seeds)."""
     pool = {c[0]: c for c in candidates if math.isfinite(c[1])}
     measured = [st for st in provisional_standings(results, min_seeds) if st.number in pool]
     means = {st.number: st.mean for st in measured}
@@ -175,9 +179,11 @@ def field_order(
         key = config_key(config)
         by_key.setdefault(key, Entrant(number, float(value), key))
     leader = measured[0].number if measured else None
+    unmeasured = [e for e in by_key.values() if e.number not in means]
+    hope = min(unmeasured, key=lambda e: (-e.value, e.number)).number if unmeasured else None
 
-    def rank(e: Entrant) -> tuple[bool, float, int]:
-        return e.number != leader, -means.get(e.number, e.value - optimism), e.number
+    def rank(e: Entrant) -> tuple[bool, bool, float, int]:
+        return e.number != leader, e.number != hope, -means.get(e.number, e.value - optimism), e.number
 
     return sorted(by_key.values(), key=rank)
 

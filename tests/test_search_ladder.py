@@ -981,6 +981,33 @@ def test_the_race_winner_takes_the_time_left_while_its_runs_reach_the_best_net(t
     assert spent._race_runs() == ([], True)  # noqa: SLF001 - 3 original trials used the budget of 3
 
 
+def test_a_round_that_would_not_finish_before_the_deadline_ends_the_race(tmp_path: Path) -> None:
+    """The halving's next round starts only when each of its runs fits the time left (padded by RACE_MARGIN): a
+    round the deadline cuts ranks no one, so the race is over and the workers go back to the search."""
+    from autotune.search.driver import RACE_MARGIN
+
+    spec = _spec(race_configs=3, race_seeds=1, n_trials=50, timeout_s=3600).with_overrides(
+        storage=str(tmp_path / "j.log"))  # fmt: skip
+    driver, study, _storages, dists, params = _driver_on_journal(spec)
+    done = optuna.trial.TrialState.COMPLETE
+    for value, attrs in (
+        (74.0, {}),
+        (73.0, {}),
+        (72.0, {}),
+        (73.5, {keys.RACE_OF: 0, keys.RACE_SEED: 0}),
+        (73.1, {keys.RACE_OF: 1, keys.RACE_SEED: 0}),
+        (70.0, {keys.RACE_OF: 2, keys.RACE_SEED: 0}),
+    ):
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=value, state=done,
+                                                  user_attrs={keys.CONFIG: TINY.to_mapping(), **attrs}))  # fmt: skip
+    study.set_user_attr(keys.RACE_FIELD, [0, 1, 2])
+    cost = driver._race_cost(TINY.to_mapping())  # noqa: SLF001
+    _left(driver, cost * RACE_MARGIN * 1.01)
+    assert driver._race_runs() == ([racing.RaceRun(0, 1), racing.RaceRun(1, 1)], False)  # noqa: SLF001
+    _left(driver, cost * RACE_MARGIN * 0.99)
+    assert driver._race_runs() == ([], True)  # noqa: SLF001 - the second round would not finish
+
+
 def test_the_incumbent_is_the_best_candidate_whose_runs_reach_the_best_net() -> None:
     """``incumbent_run``: the first candidate whose selecting score and finished fresh runs reach the study's best
     single net; its first seed index not started (a running one counts); none once every candidate trails."""

@@ -734,19 +734,28 @@ class Driver:
     def _race_runs(self) -> tuple[list[racing.RaceRun], bool]:
         """(race runs to launch now, is the race over?): the halving's next runs, then the winner's tail.
 
+        The race is over once a round's next runs would not all fit the time left (each padded by ``RACE_MARGIN``):
+        a round the deadline cuts ranks no one (a stopped run is no result), and its workers go back to the search
+        and the seed soups. Measured: a 30-minute crowd-prior study (seed 0) started its second round's two 810k runs
+        (~230 s) with 100 s left; the deadline stopped both with nothing scored, where in the minutes before its seed
+        soups had made its best nets.
         Once the halving leaves one configuration, the winner takes the next fresh seed while its best run
         reaches the study's best single net (``racing.tail_reaches``), one run of it fits the time left (padded by
         ``RACE_MARGIN``) and the trial budget is not spent (a study that ends by ``n_trials`` ends after its race)."""
         field, results, launched = self._race_state()
         seeds = self.spec.study.race_seeds
         runs, over = racing.next_runs(field, results, launched, seeds)
+        assert self.study is not None
+        trials = self.study.get_trials(deepcopy=False)
         if not over:
+            left = self._time_left()
+            if any(self._race_cost(self._raced_config(trials[r.race_of])) * RACE_MARGIN > left for r in runs):
+                return [], True  # the round would not finish: its runs would score nothing (the deadline stops
+                # them) after taking the workers, and the winner is decided on the rounds finished
             return runs, False
         tail = racing.tail_run(field, results, launched, seeds)
         if tail is None:
             return [], True
-        assert self.study is not None
-        trials = self.study.get_trials(deepcopy=False)
         scores = [v for (n, _s), v in results.items() if n == tail.race_of]
         self._refresh_counts()
         budget = self.spec.study.n_trials

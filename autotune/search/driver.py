@@ -601,9 +601,10 @@ class Driver:
         the round's runs not yet launched, spread over the workers, fit the time left — a
         run the deadline stops scores nothing after taking a worker (measured: a 10-minute study's only entrant
         raced at 810k, predicted just under the 143 s left, took 147 s, and both its runs were lost). The leader's
-        seed runs are the round's first seeds, so it usually adds nothing: counted in full, an 810k leader (~230 s a
-        run, 2 seeds) leaves no room in a 30-minute study's 7.5-minute race on 2 workers for a second 810k entrant
-        ((460 + 460) / 2 × 1.25 = 575 s of 450), and cheap 90k entrants take its place."""
+        seed runs are the round's first seeds, so it usually adds nothing: counted in full, an 810k leader of the
+        crowd twin's view (223–226 s a run in a 30-minute crowd-prior study, 2 seeds) leaves no room in that study's
+        7.5-minute race on 2 workers for a second such entrant ((450 + 450) / 2 × 1.25 = 563 s of 450), and cheap
+        90k entrants take its place."""
         assert self.study is not None
         left = self._time_left()
         results, launched = self._race_results()

@@ -1209,6 +1209,18 @@ def _left(driver: Driver, seconds: float) -> None:
     driver._t0 = time.perf_counter() - timeout + seconds  # noqa: SLF001
 
 
+def _add_seed_runs(driver: Driver, number: int, values: tuple[float, ...]) -> None:
+    """Finished seed runs of trial ``number``'s configuration on race seeds 0, 1, …, scored ``values``."""
+    assert driver.study is not None
+    source = driver.study.trials[number]
+    for seed, value in enumerate(values):
+        driver.study.add_trial(optuna.trial.create_trial(
+            params=source.params, distributions=source.distributions, value=value,
+            user_attrs={keys.CONFIG: source.user_attrs[keys.CONFIG], keys.SEED: 100 + seed, keys.RACE_OF: number,
+                        keys.RACE_SEED: seed, keys.SEED_SOUP_RUN: True},
+        ))  # fmt: skip
+
+
 def test_the_race_field_holds_only_runs_that_fit_the_time_left(tmp_path: Path) -> None:
     """A configuration one run of which (padded by RACE_MARGIN) the deadline would stop is not raced (it would
     score nothing after taking a worker); the others join best first while the first round, spread over the
@@ -1236,13 +1248,7 @@ def test_the_provisional_leader_enters_the_race_though_its_selecting_score_is_lo
     _left(driver, 3600.0)
     assert driver._race_field()[0] == [1, 0]  # noqa: SLF001
     assert driver.study is not None
-    chosen = driver.study.trials[2]
-    for seed, value in enumerate((70.0, 71.5, 71.5)):
-        driver.study.add_trial(optuna.trial.create_trial(
-            params=chosen.params, distributions=chosen.distributions, value=value,
-            user_attrs={keys.CONFIG: chosen.user_attrs[keys.CONFIG], keys.SEED: 100 + seed, keys.RACE_OF: 2,
-                        keys.RACE_SEED: seed, keys.SEED_SOUP_RUN: True},
-        ))  # fmt: skip
+    _add_seed_runs(driver, 2, (70.0, 71.5, 71.5))
     assert driver._race_field()[0] == [2, 1]  # noqa: SLF001
 
 
@@ -1253,13 +1259,7 @@ def test_the_race_field_counts_only_the_first_rounds_runs_not_yet_launched(tmp_p
 
     driver, cost = _race_driver(tmp_path, "seeded", workers=1)
     assert driver.study is not None
-    leader = driver.study.trials[1]  # the dearest configuration, 72.0: three seed runs, race seed 0 among them
-    for seed, value in enumerate((71.0, 71.5, 71.5)):
-        driver.study.add_trial(optuna.trial.create_trial(
-            params=leader.params, distributions=leader.distributions, value=value,
-            user_attrs={keys.CONFIG: leader.user_attrs[keys.CONFIG], keys.SEED: 100 + seed, keys.RACE_OF: 1,
-                        keys.RACE_SEED: seed, keys.SEED_SOUP_RUN: True},
-        ))  # fmt: skip
+    _add_seed_runs(driver, 1, (71.0, 71.5, 71.5))  # the dearest configuration, 72.0; race seed 0 among them
     driver._fitted_on = len(driver.study.trials)  # noqa: SLF001 - keep the cost model (no refit on the seed runs)
     _left(driver, cost[1] * RACE_MARGIN * 1.01)  # a run of the leader fits; with one run of 0 beside it, not
     assert cost[1] + cost[0] > cost[1] * 1.01

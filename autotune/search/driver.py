@@ -738,8 +738,8 @@ class Driver:
         The race is over once a round's next runs would not all fit the time left (each padded by ``RACE_MARGIN``):
         a round the deadline cuts ranks no one (a stopped run is no result), and its workers go back to the search
         and the seed soups. Measured: a 30-minute crowd-prior study (seed 0) started its second round's two 810k runs
-        (~230 s) with 100 s left; the deadline stopped both with nothing scored, where in the minutes before its seed
-        soups had made its best nets.
+        (~145 s each) with ~100 s left; the deadline stopped both with nothing scored, where in the minutes before
+        its seed soups had made its best nets.
         Once the halving leaves one configuration, the winner takes the next fresh seed while its best run
         reaches the study's best single net (``racing.tail_reaches``), one run of it fits the time left (padded by
         ``RACE_MARGIN``) and the trial budget is not spent (a study that ends by ``n_trials`` ends after its race)."""

@@ -165,9 +165,10 @@ def field_order(
     while the leader, gsurma's setting at 73.2 over 5 seeds, never raced. The leader's seed runs are race runs, so
     it enters at no cost, and the race replaces the pick only by beating it on the same seeds. Why the best
     unmeasured one second: the race is the only measurement it gets, and a measured configuration below the leader
-    has already lost to it on average; a 30-minute crowd-prior study (seed 0) raced the leader and three of
-    gsurma's settings while its best net's configuration (75.56, a γ neighbour of the crowd twin, 7 minutes old)
-    waited for its first fresh seed, and picked gsurma's adagrad twin (71.80 on 3 fresh seeds)."""
+    has already lost to it on average. A 30-minute crowd-prior study (seed 0) raced the leader, gsurma's setting
+    and two of its twins, not its best net's configuration (75.56, a γ neighbour of the crowd twin, not yet
+    reseeded), and picked gsurma's adagrad twin (71.80 on 3 fresh seeds); its journal did not survive to say
+    whether the order or the round's time count (``Driver._race_field``) left it out, and each is fixed."""
     pool = {c[0]: c for c in candidates if math.isfinite(c[1])}
     measured = [st for st in provisional_standings(results, min_seeds) if st.number in pool]
     means = {st.number: st.mean for st in measured}

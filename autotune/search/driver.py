@@ -683,8 +683,7 @@ class Driver:
         """The gate's cap for the next draw: the study's cost cap (``side``: a twin's or neighbour's one training,
         ``max_side_cost_s``), or the time left if less (a ladder the deadline would stop is refused: its finished
         rungs are no value, and its worker's time is lost)."""
-        study = self.spec.study
-        return min(study.side_cost_cap_s if side else study.cost_cap_s, self._time_left())
+        return min(self.spec.study.cap_s(side), self._time_left())
 
     def _worth_starting(self) -> bool:
         """False once the time left is below the cheapest ladder up to the gated rungs (``min_top``) this study has
@@ -1458,7 +1457,7 @@ class Driver:
                 predicted = (plan_one if alone else plan)(configs, self._model(), cap, top)
                 if predicted is None:
                     cheapest = self._model().predict(configs[0])
-                    if cap >= (self.spec.study.side_cost_cap_s if alone else self.spec.study.cost_cap_s):
+                    if cap >= self.spec.study.cap_s(alone):
                         raise _Refused(f"refused: its cheapest rung is predicted to take {cheapest:,.0f} s, over "
                                        f"the study's cost cap of {cap:,.0f} s ([study] "
                                        f"{self.spec.study.cap_key(alone)})")  # fmt: skip

@@ -357,6 +357,10 @@ class StudySection:
         """The cap of one linear twin's or neighbour's training [s]: max_side_cost_s, else the cost gate's cap."""
         return self.max_side_cost_s if self.max_side_cost_s is not None else self.cost_cap_s
 
+    def cap_s(self, side: bool = False) -> float:
+        """The cost cap of one draw: ``side_cost_cap_s`` for a twin or neighbour (``side``), else ``cost_cap_s``."""
+        return self.side_cost_cap_s if side else self.cost_cap_s
+
     def cap_key(self, side: bool = False) -> str:
         """The [study] key that sets ``side_cost_cap_s`` (``side``) or ``cost_cap_s``, for a refusal's message."""
         if side and self.max_side_cost_s is not None:

@@ -333,21 +333,25 @@ def test_max_side_cost_s_is_checked() -> None:
 
 
 def test_neighbours_move_one_parameter_a_step_inside_the_space() -> None:
-    """Each step of ``NEIGHBOUR_STEPS`` moves its one parameter (1 − γ × 2 and × 0.5, lanes ± 1, patches ahead × 3/4
-    and × 4/3, patches behind ± 2, the rate × 0.5 and × 2), clipped to the space, an integer rounded but moved by
-    one at least; a step that
-    changes nothing (at a bound) or whose parameter is not searched is left out."""
-    extra = (Dimension("one_minus_gamma", "float", 1e-4, 0.7, log=True), Dimension("patches_behind", "int", 0, 20))
+    """Each step of ``NEIGHBOUR_STEPS`` moves its one parameter (the temporal window to 0, 1 − γ × 2 and × 0.5,
+    lanes ± 1, patches ahead × 3/4 and × 4/3, patches behind ± 2, the rate × 0.5 and × 2), clipped to the space, an
+    integer moved by × or + rounded but by one at least; a step that changes nothing (at a bound, or a window
+    already 0) or whose parameter is not searched is left out."""
+    extra = (Dimension("one_minus_gamma", "float", 1e-4, 0.7, log=True), Dimension("patches_behind", "int", 0, 20),
+             Dimension("temporal_window", "int", 0, 10))  # fmt: skip
     params = {"n_layers": 0, "method": "adagrad", LR_X_INPUTS: 3.0, "lanes_side": 2, "patches_ahead": 3,
-              "patches_behind": 1, "one_minus_gamma": 0.1}  # fmt: skip
+              "patches_behind": 1, "one_minus_gamma": 0.1, "temporal_window": 7}  # fmt: skip
     made = twins.neighbours(params, (*_spec().space, *extra))
     moved = [next((k, t[k]) for k in t if t[k] != params[k]) for t in made]
-    expected = [("one_minus_gamma", 0.2), ("one_minus_gamma", 0.05), ("lanes_side", 1), ("patches_ahead", 2),
-                ("patches_ahead", 4), ("patches_behind", 0), ("patches_behind", 3), (LR_X_INPUTS, 1.5),
-                (LR_X_INPUTS, 6.0)]  # fmt: skip
+    expected = [("temporal_window", 0), ("one_minus_gamma", 0.2), ("one_minus_gamma", 0.05), ("lanes_side", 1),
+                ("patches_ahead", 2), ("patches_ahead", 4), ("patches_behind", 0), ("patches_behind", 3),
+                (LR_X_INPUTS, 1.5), (LR_X_INPUTS, 6.0)]  # fmt: skip
     assert moved == expected  # lanes_side 3 is past the space's 2: left out
     assert all(sum(t[k] != params[k] for k in params) == 1 for t in made)
-    assert isinstance(made[3]["patches_ahead"], int)
+    assert isinstance(made[0]["temporal_window"], int) and isinstance(made[4]["patches_ahead"], int)
+    base = {**params, "temporal_window": 0}
+    unwindowed = twins.neighbours(base, (*_spec().space, *extra))  # no window to drop: the other steps alone
+    assert [next((k, t[k]) for k in t if t[k] != base[k]) for t in unwindowed] == expected[1:]
     base = {**params, "patches_ahead": 1}
     narrow = twins.neighbours(base, _spec().space)  # no γ or behind searched here
     assert [next((k, t[k]) for k in t if t[k] != base[k]) for t in narrow] == [

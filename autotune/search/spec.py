@@ -311,8 +311,9 @@ class StudySection:
     (``ensemble.greedy_step``); 0: additions only."""
     linear_neighbours: bool = False
     """With seed_soups: whenever a linear configuration's net (its own or its seed soup) is the study's best, or it
-    leads by mean over its fresh seeds (3 or more), its neighbours — its parameters with one of γ, the view or the
-    rate moved a step (``twins.NEIGHBOUR_STEPS``) — are enqueued once, each trained like a linear twin; false: none."""
+    leads by mean over its fresh seeds (3 or more), its neighbours — its parameters with the temporal window dropped,
+    or one of γ, the view or the rate moved a step (``twins.NEIGHBOUR_STEPS``) — are enqueued once, each trained like
+    a linear twin; false: none."""
     seed_soup_leader: bool = False
     """With seed_soup_runs: the configuration that leads by mean over its fresh seeds (3 or more) takes every other
     run of the refinement's worker, and any run it would leave idle, up to its seed_soup_runs (12 with hidden

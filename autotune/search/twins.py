@@ -16,14 +16,14 @@ at 90k: 74.0 on average); jnorthrup-v05's view (6 lanes a side, 52 ahead, none b
 input: 65.8–69.1, 59.9–73.2 and 65.3–72.5, so a crowd linear setting is no better a parent than the best.
 
 Linear neighbours (``[study] linear_neighbours``). A linear configuration's soups rise far above its single nets, and
-how far depends on the configuration: in crowd-prior hours the soups of gsurma's view (2 lanes a side, 15 patches
-ahead, 7 behind, γ 0.9) stopped at 75.35 and 75.57 over 43 and 64 seeds, those of a search trial's linear twin (5
-lanes a side, 15 ahead, 9 behind, γ 0.72) reached 75.72 in the hour and 75.80 offline. So once a linear
-configuration's net (its own training, or its seed soup) is the study's best net, or it is the linear configuration
-with the best mean over its fresh seeds, its neighbours — its parameters with one of γ (as 1 − γ), the view or the
-rate moved one step (``NEIGHBOUR_STEPS``) — are enqueued once, trained like twins; each being linear, it gets probe
-seeds and soups, and one whose soups become the best net, or whose seeds' mean leads, gets its neighbours in turn: a
-climb on the mean over seeds, the measure the seed race and ``autotune best`` rank configurations by.
+how far depends on the configuration: in crowd-prior hours the soups of gsurma's view (2 lanes a side, 15 patches ahead,
+7 behind, γ 0.9) stopped at 75.35 and 75.57 over 43 and 64 seeds, those of a search trial's linear twin (5 lanes a side,
+15 ahead, 9 behind, γ 0.72) reached 75.72 in the hour and 75.80 offline. So once a linear configuration's net (its own
+training, or its seed soup) is the study's best net, or it is the linear configuration with the best mean over its fresh
+seeds, its neighbours — its parameters with the temporal window dropped, or one of γ (as 1 − γ), the view or the rate
+moved one step (``NEIGHBOUR_STEPS``) — are enqueued once, trained like twins; each being linear, it gets probe seeds and
+soups, and one whose soups become the best net, or whose seeds' mean leads, gets its neighbours in turn: a climb on the
+mean over seeds, the measure the seed race and ``autotune best`` rank configurations by.
 Outside a study, 6 seeds each of gsurma's adagrad twin and of its neighbours greedily souped at 74.83 for the
 twin and at 75.42 (a lane a side less), 75.25 (γ 0.8), 75.06, 75.02, 74.85, 74.66, 74.52, 74.30, 73.98 for them.
 
@@ -49,15 +49,25 @@ TWIN_SKIP = (keys.RETRY_OF, keys.RACE_OF, keys.REFINE_OF, keys.COPIED_FROM, keys
 their configuration's first measure), copied history, or a twin or neighbour itself (its twins are its siblings)."""
 
 NEIGHBOUR_STEPS: tuple[tuple[str, str, float], ...] = (
+    ("temporal_window", "=", 0),
     ("one_minus_gamma", "×", 2.0), ("one_minus_gamma", "×", 0.5),
     ("lanes_side", "+", -1), ("lanes_side", "+", 1),
     ("patches_ahead", "×", 0.75), ("patches_ahead", "×", 4 / 3),
     ("patches_behind", "+", -2), ("patches_behind", "+", 2),
     (LR_X_INPUTS, "×", 0.5), (LR_X_INPUTS, "×", 2.0),
 )  # fmt: skip
-"""(parameter, × or +, step) of each neighbour, in order: 1 − γ doubled and halved, a lane a side less and more,
-a quarter of the patches ahead less and a third more, two patches behind less and more, the rate per input
-halved and doubled. 1 − γ doubled first: in both linear families measured the shorter horizon won, gsurma's adagrad
+"""(parameter, × or + or =, step) of each neighbour, in order: no temporal window, 1 − γ doubled and halved, a lane a
+side less and more, a quarter of the patches ahead less and a third more, two patches behind less and more, the
+rate per input halved and doubled.
+
+The window dropped first: every linear family whose soups passed 75.5 saw one frame or two (windows 0–1), and a windowed
+leader never leaves its window by the other steps. In a crowd-prior hour (seed 1, dea790b) 31 of 82 fresh window-0
+linear trainings scored 74 or more (the best 75.81); in a cold 30-minute study (seed 0, dea790b) TPE drew no window-0
+linear net, and its 43 window-7 ones peaked at 73.78 (soups 74.48); the cold hours that missed 75 had settled on windows
+of 4–5 and 9–10 (seeds 2 and 3, 6 Dec). Halving the window instead (f5a308d, not kept) stayed windowed: window 4 scored
+below its window-8 parents. Its rate per input is kept, so its learning rate rises with the inputs it sheds.
+
+1 − γ doubled next: in both linear families measured the shorter horizon won, gsurma's adagrad
 twin (γ 0.9) at γ 0.8 75.25 against 73.98 at γ 0.95 (6 seeds each, souped), jnorthrup-v05's view (γ 0.989) at
 γ 0.978 75.85 against 62.00 at γ 0.994 (a crowd-prior hour, seed 2; the first's 9 seeds: median 75.72), and the
 neighbours start one at a time under ``[study] side_share``, each of that view ~4 minutes."""
@@ -77,8 +87,9 @@ def twins(params: Mapping[str, Any], rates: Iterable[tuple[str, Sequence[float]]
 
 
 def neighbours(params: Mapping[str, Any], space: Sequence[Dimension]) -> list[dict[str, Any]]:
-    """``params`` with one parameter moved per ``NEIGHBOUR_STEPS`` entry, in order, inside ``space`` (clipped to a
-    dimension's range; an integer one rounded but moved by one at least); a step whose parameter is not searched,
+    """``params`` with one parameter moved (or set, ``=``) per ``NEIGHBOUR_STEPS`` entry, in order, inside ``space``
+    (clipped to a dimension's range; an integer one moved by × or + rounded but by one at least); a step whose
+    parameter is not searched,
     that leaves ``params`` unchanged (at a bound), or that repeats an earlier neighbour is left out."""
     dims = {d.name: d for d in space}
     out: list[dict[str, Any]] = []
@@ -87,8 +98,8 @@ def neighbours(params: Mapping[str, Any], space: Sequence[Dimension]) -> list[di
         if d is None or d.kind == "categorical" or name not in params:
             continue
         now = params[name]
-        value = now * step if op == "×" else now + step
-        if d.kind == "int":  # at least one unit: a third more than 1 patch is 2
+        value = now * step if op == "×" else now + step if op == "+" else step
+        if d.kind == "int" and op != "=":  # at least one unit: a third more than 1 patch is 2
             value = round(value) if round(value) != now else now + (1 if value > now else -1)
         assert d.low is not None and d.high is not None
         value = min(max(value, d.low), d.high)

@@ -91,8 +91,8 @@ def twins(params: Mapping[str, Any], rates: Iterable[tuple[str, Sequence[float]]
 def neighbours(params: Mapping[str, Any], space: Sequence[Dimension]) -> list[dict[str, Any]]:
     """``params`` with one parameter moved (or set, ``=``) per ``NEIGHBOUR_STEPS`` entry, in order, inside ``space``
     (clipped to a dimension's range; an integer one moved by × or + rounded but by one at least); a step whose
-    parameter is not searched,
-    that leaves ``params`` unchanged (at a bound), or that repeats an earlier neighbour is left out."""
+    parameter is not searched, that leaves ``params`` unchanged (at a bound, or already at its ``=`` value), or that
+    repeats an earlier neighbour is left out."""
     dims = {d.name: d for d in space}
     out: list[dict[str, Any]] = []
     for name, op, step in NEIGHBOUR_STEPS:

@@ -446,6 +446,33 @@ def test_a_wider_seed_soup_reach_shares_the_refinement_worker(tmp_path: Path) ->
         assert kinds == ("RRRRRR" if reach == 0.5 else "SSSSRRRRSRSRSS")
 
 
+def test_probe_seeds_rank_a_configuration_by_its_own_nets_not_its_familys_soup(tmp_path: Path) -> None:
+    """Probe seeds go to a configuration by its own nets: one whose net is 74.9 but whose family has no soup comes
+    before a member (73.8 alone) of the family whose soup is the best net (75.6); the seeds near the best
+    (``SEED_RUN_REACH``, not probes) still rank by the family's soup."""
+    spec = _spec(n_trials=40, timeout_s=3600, refine_share=0.5, seed_soups=[2], seed_soup_runs=8,
+                 seed_soup_reach=2.0, seed_soup_families=True).with_overrides(
+                     storage=str(tmp_path / "j.log"), workers=2)  # fmt: skip
+    driver, study, storages, dists, params = _driver_on_journal(spec)
+    net = _upload(storages, study, _linear_text(0))
+    head, member, apart = (LINEAR.to_mapping(), LINEAR.replace(gamma=0.8).to_mapping(),
+                           LINEAR.replace(temporal_window=2).to_mapping())  # fmt: skip
+    assert ensemble.family_key(member) == ensemble.family_key(head) != ensemble.family_key(apart)
+    _add_seed_rows(study, params, dists, net, [head, member, apart], [
+        (75.0, 0, {}),
+        *((74.9, 0, {keys.RACE_OF: 0, keys.RACE_SEED: i}) for i in range(ensemble.PROBE_SEEDS)),
+        (75.6, 0, {keys.SOUP_OF: [0, 1], keys.SEED_SOUP_OF: 0, keys.REFINE_OF: refine.Parent(0, None, 75.0).to_attr()}),
+        (73.8, 1, {}),
+        (74.9, 2, {}),
+    ])  # fmt: skip
+    member_n, apart_n = len(study.trials) - 2, len(study.trials) - 1
+    driver._t0, driver.pool = time.perf_counter(), FakePool()  # noqa: SLF001
+    assert driver._launch_seed_run(1, 2.0, ensemble.PROBE_SEEDS, own=True)  # noqa: SLF001
+    assert study.trials[driver._running.pop(1).trial.number].user_attrs[keys.RACE_OF] == apart_n  # noqa: SLF001
+    assert driver._launch_seed_run(1, 2.0, ensemble.PROBE_SEEDS)  # noqa: SLF001 - by the family's soup
+    assert study.trials[driver._running.pop(1).trial.number].user_attrs[keys.RACE_OF] == member_n  # noqa: SLF001
+
+
 def test_with_seed_ensembles_configurations_with_hidden_layers_have_seed_nets_of_their_own() -> None:
     """``hidden`` (``[study] seed_ensembles``): a configuration with hidden layers groups its seeds too — never with
     a linear family, whose soups are means of weights — and a cap on a stack's members bounds its soups."""

@@ -907,7 +907,7 @@ class Driver:
         the best net, a soup of the parent's runs, or a refinement run, in that order."""
         assert self.study is not None
         st = self.spec.study
-        if st.seed_soup_runs and (self._launch_seed_run(slot, st.seed_soup_reach, ensemble.PROBE_SEEDS)
+        if st.seed_soup_runs and (self._launch_seed_run(slot, st.seed_soup_reach, ensemble.PROBE_SEEDS, own=True)
                                   or self._launch_seed_run(slot, SEED_RUN_REACH)):  # fmt: skip
             return True  # a configuration in reach first gets its probe seeds; one near the best, all its seeds
         trials = self.study.get_trials(deepcopy=False)
@@ -1032,14 +1032,22 @@ class Driver:
         })  # fmt: skip
         return self._launch_next(slot)
 
-    def _launch_seed_run(self, slot: int, reach: float, runs: int | None = None) -> bool:
+    def _launch_seed_run(self, slot: int, reach: float, runs: int | None = None, own: bool = False) -> bool:
         """Start a fresh seed of a linear configuration within ``reach`` mph of the study's best net on ``slot``, for
         its seed soups (``ensemble.next_seed_run``, up to ``runs`` or ``[study] seed_soup_runs`` seeds, the fewer):
         a race run before the race, on the race's seeds, so the race counts it. With ``[study] seed_ensembles`` a
         configuration with hidden layers too, only within ``SEED_RUN_REACH`` (of the best net, or its own net of
         the best fresh training's) and up to ``ensemble.STACK_SEED_RUNS`` seeds (one trains for longer: no probe
         seeds further below). The caller (``_launch_refine``) has checked the
-        refinement's share."""
+        refinement's share.
+
+        A configuration's level is its best net or seed soup, a family's soup counting for each of its members; with
+        ``own`` (the probe seeds, ``ensemble.PROBE_SEEDS``) its own nets alone: a probe measures a configuration, and
+        by the family's level the best family's members took every probe. A crowd-prior hour (seed 0, 3065400) gave
+        its probes to the family of the crowd twin's soups (75.48–75.68): to gsurma's adadelta twin (its own best
+        71.97; its probes 72.36, 58.85, 60.66, 37.69) and a view neighbour (73.74), while the twin's γ neighbour
+        (74.91 on its one seed, in another family by its ε_test) had none; retrained offline it scored 75.54, 75.63
+        on its first two seeds, where the twin's runs averaged 74.77 without its two collapses."""
         assert self.study is not None
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)
@@ -1065,7 +1073,7 @@ class Driver:
         members: dict[int, list[int]] = {}  # a family's soup is the level of each of its configurations
         for owner, head in family.items():
             members.setdefault(head, []).append(owner)
-        for t in trials:
+        for t in trials if not own else ():
             of = t.user_attrs.get(keys.SEED_SOUP_OF)
             if of is not None and t.state == TrialState.COMPLETE and t.value is not None:
                 for owner in members.get(family.get(int(of), int(of)), [int(of)]):

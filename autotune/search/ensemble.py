@@ -270,7 +270,8 @@ PROBE_SEEDS = 4
 """Seeds a linear configuration within ``[study] seed_soup_reach`` of the best net gets first, ahead of the others'
 (``driver._launch_refine``): by level alone, one configuration's 64 seeds (best 74.45, soups to 75.26) held the
 refinement's worker for 15 minutes while a later one, first seed 74.49, waited; given seeds, it scored 75.22 and
-75.10 and souped to 75.56."""
+75.10 and souped to 75.56. They rank configurations by their own nets, not their family's soups
+(``driver._launch_seed_run``'s ``own``)."""
 
 
 def next_seed_run(

@@ -1046,8 +1046,9 @@ class Driver:
         by the family's level the best family's members took every probe. A crowd-prior hour (seed 0, 3065400) gave
         its probes to the family of the crowd twin's soups (75.48–75.68): to gsurma's adadelta twin (its own best
         71.97; its probes 72.36, 58.85, 60.66, 37.69) and a view neighbour (73.74), while the twin's γ neighbour
-        (74.91 on its one seed, in another family by its ε_test) had none; retrained offline it scored 75.54, 75.63
-        on its first two seeds, where the twin's runs averaged 74.77 without its two collapses."""
+        (74.91 on its one seed, in another family by its ε_test) had none; retrained offline it scored 75.37–75.67
+        on 4 seeds, where the twin's runs averaged 74.77 without its two collapses. With own levels the same hour
+        (030ceb1) probed it from minute 18.5 (75.47–75.49) and reached 75.91, its pick 75.44 on fresh seeds."""
         assert self.study is not None
         st = self.spec.study
         trials = self.study.get_trials(deepcopy=False)

@@ -1069,16 +1069,17 @@ class Driver:
         groups, family = ensemble.seed_groups(rows, hidden=st.seed_ensembles, views=st.seed_soup_views)
         for owner, nets in groups.items():
             level[owner] = max(s for _, s in nets)
-        if not st.seed_soup_families:
-            family = {}
-        members: dict[int, list[int]] = {}  # a family's soup is the level of each of its configurations
-        for owner, head in family.items():
-            members.setdefault(head, []).append(owner)
-        for t in trials if not own else ():
-            of = t.user_attrs.get(keys.SEED_SOUP_OF)
-            if of is not None and t.state == TrialState.COMPLETE and t.value is not None:
-                for owner in members.get(family.get(int(of), int(of)), [int(of)]):
-                    level[owner] = max(level.get(owner, -math.inf), float(t.value))
+        if not own:  # a probe's level is its own nets; otherwise its seed soups count, a family's for each member
+            if not st.seed_soup_families:
+                family = {}
+            members: dict[int, list[int]] = {}
+            for owner, head in family.items():
+                members.setdefault(head, []).append(owner)
+            for t in trials:
+                of = t.user_attrs.get(keys.SEED_SOUP_OF)
+                if of is not None and t.state == TrialState.COMPLETE and t.value is not None:
+                    for owner in members.get(family.get(int(of), int(of)), [int(of)]):
+                        level[owner] = max(level.get(owner, -math.inf), float(t.value))
         _results, launched = self._race_results()
         hidden = {n: ensemble.STACK_SEED_RUNS for n, e in entries.items() if not ensemble.is_linear(e[2])}
         run = ensemble.next_seed_run(
